@@ -1,0 +1,38 @@
+"""va-plugin: view-adaptive NeRF/NeuS reconstruction from generated multi-view images."""
+
+from setuptools import find_packages, setup
+
+METHODS = [
+    "neus = method_configs.neus:neus",
+]
+
+setup(
+    name="va-plugin",
+    version="0.1.0",
+    description="View-adaptive renderer for view-consistent 2D-to-3D generation (NeuS / InstantNGP plugin)",
+    python_requires=">=3.11",
+    packages=find_packages(include=["va_plugin", "va_plugin.*", "method_configs", "method_configs.*"]),
+    install_requires=[
+        # torch is pinned by the setup script to the CPU build on this machine; a plain range here
+        # would let pip pull a multi-GB CUDA build when torch is missing.
+        "torch>=2.1",
+        "numpy",
+        "trimesh",
+        "open3d",
+        "opencv-contrib-python-headless",
+        "scikit-image",  # marching cubes
+        "tqdm",          # progress bars
+    ],
+    extras_require={
+        "test": ["pytest", "hypothesis"],
+        "plots": ["matplotlib"],
+    },
+    entry_points={
+        "console_scripts": [
+            "va-train = va_plugin.cli.train:main",
+            "va-export = va_plugin.cli.export:main",
+            "va-eval = va_plugin.cli.eval:main",
+        ],
+        "va_plugin.methods": METHODS,
+    },
+)

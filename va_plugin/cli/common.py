@@ -1,0 +1,36 @@
+"""Shared pieces of the command-line entry points: one clear line and exit 2 on user errors."""
+
+from __future__ import annotations
+
+import functools
+import os
+import sys
+from pathlib import Path
+from typing import Callable
+
+from va_plugin.errors import VAError
+
+EXIT_USER_ERROR = 2
+EXIT_INTERRUPTED = 130
+
+
+def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
+    """Turn VAError into ``error: <message>`` on stderr with exit status 2 (no traceback)."""
+
+    @functools.wraps(main)
+    def wrapper(*args, **kwargs) -> int:
+        try:
+            return main(*args, **kwargs)
+        except VAError as exc:
+            print(f"error: {exc}", file=sys.stderr)
+            return EXIT_USER_ERROR
+        except KeyboardInterrupt:
+            print("interrupted", file=sys.stderr)
+            return EXIT_INTERRUPTED
+
+    return wrapper
+
+
+def cache_dir() -> Path:
+    """Where generated default data lives (``$VA_PLUGIN_CACHE`` or ``~/.cache/va-plugin``)."""
+    return Path(os.environ.get("VA_PLUGIN_CACHE", Path.home() / ".cache" / "va-plugin"))

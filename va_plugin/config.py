@@ -1,0 +1,116 @@
+"""Configuration objects in the nerfstudio style.
+
+Every component has a dataclass config that names the class it builds (``_target``) and builds it
+with ``setup(**kwargs)``. Configs are the single source of every default. Dotted overrides such as
+``pipeline.model.eikonal_weight=0.05`` are applied with :func:`apply_override`, converting the
+value to the type of the field it replaces.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import json
+from dataclasses import dataclass, field, fields, is_dataclass
+from typing import Any, Type
+
+from va_plugin.errors import ConfigError
+
+
+@dataclass
+class InstantiateConfig:
+    """A config that builds the object it describes."""
+
+    _target: Type = field(default=None, repr=False)  # type: ignore[assignment]
+
+    def setup(self, **kwargs: Any) -> Any:
+        """Build the target object from this config."""
+        if self._target is None:
+            raise ConfigError(f"{type(self).__name__} has no _target to build")
+        return self._target(self, **kwargs)
+
+
+def to_dict(config: Any) -> Any:
+    """A JSON-friendly nested dict of a config (targets are written as their qualified names)."""
+    if is_dataclass(config) and not isinstance(config, type):
+        out = {}
+        for f in fields(config):
+            value = getattr(config, f.name)
+            out[f.name] = to_dict(value)
+        out["__class__"] = type(config).__name__
+        return out
+    if isinstance(config, type):
+        return f"{config.__module__}.{config.__qualname__}"
+    if isinstance(config, dict):
+        return {str(k): to_dict(v) for k, v in config.items()}
+    if isinstance(config, (list, tuple)):
+        return [to_dict(v) for v in config]
+    if hasattr(config, "__fspath__"):
+        return str(config)
+    if isinstance(config, (int, float, str, bool)) or config is None:
+        return config
+    return repr(config)
+
+
+def config_digest(config: Any) -> str:
+    """A stable text form of a config, used to tell whether a checkpoint fits a config."""
+    return json.dumps(to_dict(config), sort_keys=True)
+
+
+def _convert(text: str, current: Any, name: str) -> Any:
+    """Turn the text of an override into the type of the value it replaces."""
+    lowered = text.strip().lower()
+    if isinstance(current, bool):
+        if lowered in ("1", "true", "yes", "on"):
+            return True
+        if lowered in ("0", "false", "no", "off"):
+            return False
+        raise ConfigError(f"option {name} takes true or false, got {text!r}")
+    try:
+        if isinstance(current, int):
+            return int(text)
+        if isinstance(current, float):
+            return float(text)
+    except ValueError:
+        kind = "an integer" if isinstance(current, int) else "a number"
+        raise ConfigError(f"option {name} takes {kind}, got {text!r}") from None
+    if current is None:
+        if lowered in ("none", "null"):
+            return None
+        for cast in (int, float):
+            try:
+                return cast(text)
+            except ValueError:
+                pass
+        return text
+    if isinstance(current, (tuple, list)):
+        try:
+            parsed = json.loads(text)
+        except json.JSONDecodeError:
+            parsed = [p for p in text.split(",") if p]
+        if not isinstance(parsed, list):
+            parsed = [parsed]
+        return type(current)(parsed)
+    return text
+
+
+def apply_override(config: Any, assignment: str) -> None:
+    """Apply ``a.b.c=value`` to a nested config, in place, with a clear error for unknown names."""
+    if "=" not in assignment:
+        raise ConfigError(f"override {assignment!r} must look like name.path=value")
+    path, text = assignment.split("=", 1)
+    parts = path.strip().split(".")
+    target = config
+    for depth, part in enumerate(parts[:-1]):
+        if not hasattr(target, part):
+            raise ConfigError(f"unknown option {'.'.join(parts[: depth + 1])!r} in {assignment!r}")
+        target = getattr(target, part)
+    last = parts[-1]
+    if not is_dataclass(target) or last not in {f.name for f in fields(target)}:
+        known = ", ".join(f.name for f in fields(target)) if is_dataclass(target) else ""
+        raise ConfigError(f"unknown option {path!r}; options here are: {known}")
+    setattr(target, last, _convert(text, getattr(target, last), path))
+
+
+def replace(config: Any, **changes: Any) -> Any:
+    """A shallow copy of a dataclass config with some fields changed."""
+    return dataclasses.replace(config, **changes)

@@ -1,0 +1,116 @@
+"""The DataManager: loads a scene's splits and hands out training rays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Iterator, Optional, Tuple, Type
+
+import torch
+
+from va_plugin.config import InstantiateConfig
+from va_plugin.data.dataparsers.base import DataParserConfig, DataparserOutputs
+from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.errors import DataError
+from va_plugin.rays import RayBundle
+
+
+@dataclass
+class DataManagerConfig(InstantiateConfig):
+    """Loads the training and test views and samples training rays."""
+
+    _target: Type = field(default_factory=lambda: DataManager)
+    dataparser: DataParserConfig = field(default_factory=TransformsDataParserConfig)
+    """How to read the scene."""
+    rays_per_batch: int = 512
+    """Training rays per step."""
+    foreground_fraction: float = 0.5
+    """Share of each batch drawn from foreground pixels (the rest uniformly from all pixels)."""
+    seed: int = 42
+    """Seed of the ray sampler's own generator (independent of the model's)."""
+
+
+class DataManager:
+    """Holds the images on the device and draws random training rays with their view indices."""
+
+    def __init__(self, config: DataManagerConfig, device: torch.device = torch.device("cpu")) -> None:
+        if not 0.0 <= config.foreground_fraction <= 1.0:
+            raise DataError(f"foreground_fraction must be in [0, 1], got {config.foreground_fraction}")
+        if config.rays_per_batch < 1:
+            raise DataError(f"rays_per_batch must be positive, got {config.rays_per_batch}")
+        self.config = config
+        self.device = device
+        parser = config.dataparser.setup()
+        self.train = parser.get_outputs("train")
+        self.test: Optional[DataparserOutputs] = parser.get_outputs("test")
+        self.cameras = self.train.cameras.to(device)
+        self.images = self.train.images.to(device)
+        self.masks = None if self.train.masks is None else self.train.masks.to(device)
+        self.generator = torch.Generator(device="cpu").manual_seed(config.seed)
+        self._height, self._width = self.images.shape[1:3]
+        self._foreground = self._foreground_pixels()
+
+    @property
+    def num_train_views(self) -> int:
+        return len(self.train)
+
+    @property
+    def scene_radius(self) -> float:
+        return self.train.scene_radius
+
+    @property
+    def background(self) -> Tuple[float, float, float]:
+        return self.train.background
+
+    def _foreground_pixels(self) -> Optional[torch.Tensor]:
+        """Flat indices ``[m]`` of pixels whose mask is above one half, or None without masks."""
+        if self.masks is None:
+            return None
+        flat = (self.masks.reshape(-1) > 0.5).nonzero().squeeze(-1).cpu()
+        if flat.numel() == 0:
+            raise DataError("the foreground masks are empty in every view: nothing to reconstruct")
+        return flat
+
+    def _sample_flat_indices(self) -> torch.Tensor:
+        n = self.config.rays_per_batch
+        total = self.images.shape[0] * self._height * self._width
+        n_fg = int(round(n * self.config.foreground_fraction)) if self._foreground is not None else 0
+        uniform = torch.randint(0, total, (n - n_fg,), generator=self.generator)
+        if n_fg == 0:
+            return uniform
+        pick = torch.randint(0, self._foreground.numel(), (n_fg,), generator=self.generator)
+        return torch.cat([self._foreground[pick], uniform])
+
+    def next_train(self, step: int) -> Tuple[RayBundle, Dict[str, torch.Tensor]]:
+        """A random batch of training rays and their targets (``rgb [n, 3]``, ``mask [n, 1]``)."""
+        flat = self._sample_flat_indices().to(self.device)
+        pixels = self._height * self._width
+        views, within = flat // pixels, flat % pixels
+        rows, cols = within // self._width, within % self._width
+        origins, directions = self.cameras.generate_rays(views, rows, cols)
+        batch = {"rgb": self.images[views, rows, cols]}
+        if self.masks is not None:
+            batch["mask"] = self.masks[views, rows, cols]
+        return RayBundle(origins, directions, views), batch
+
+    def image_rays(self, outputs: DataparserOutputs, index: int, camera_index: Optional[int] = None
+                   ) -> RayBundle:
+        """Every ray of one view of ``outputs``, row-major; ``camera_index`` labels them (-1: novel)."""
+        cameras = outputs.cameras.to(self.device)
+        views, rows, cols = cameras.pixel_grid(index)
+        origins, directions = cameras.generate_rays(views, rows, cols)
+        label = index if camera_index is None else camera_index
+        return RayBundle(origins, directions, torch.full_like(views, label))
+
+    def eval_views(self) -> Iterator[Tuple[int, RayBundle, torch.Tensor, Optional[torch.Tensor]]]:
+        """The held-out views as (index, rays, image ``[H, W, 3]``, mask or None); novel-view rays."""
+        if self.test is None:
+            return
+        for i in range(len(self.test)):
+            mask = None if self.test.masks is None else self.test.masks[i]
+            yield i, self.image_rays(self.test, i, camera_index=-1), self.test.images[i], mask
+
+    def state_dict(self) -> Dict[str, torch.Tensor]:
+        return {"generator": self.generator.get_state()}
+
+    def load_state_dict(self, state: Dict[str, torch.Tensor]) -> None:
+        self.generator.set_state(state["generator"])

@@ -1,0 +1,64 @@
+"""What every dataparser returns."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple
+
+import torch
+
+from va_plugin.cameras import Cameras
+from va_plugin.config import InstantiateConfig
+
+
+@dataclass
+class DataparserOutputs:
+    """One split of a scene.
+
+    Attributes:
+        images: ``[n, H, W, 3]`` float in [0, 1], already composited on ``background``.
+        masks: ``[n, H, W, 1]`` foreground in [0, 1], or None when the inputs carry no mask.
+        cameras: the ``n`` cameras.
+        scene_radius: radius of the bounding sphere at the origin that holds the object.
+        background: RGB the images are composited on.
+        image_paths: where each image came from (for messages).
+        metadata: anything else the source knows (ground-truth mesh path, scene.json contents, ...).
+    """
+
+    images: torch.Tensor
+    masks: Optional[torch.Tensor]
+    cameras: Cameras
+    scene_radius: float
+    background: Tuple[float, float, float]
+    image_paths: List[Path] = field(default_factory=list)
+    metadata: Dict[str, Any] = field(default_factory=dict)
+
+    def __len__(self) -> int:
+        return self.images.shape[0]
+
+
+@dataclass
+class DataParserConfig(InstantiateConfig):
+    """Common options of every dataparser."""
+
+    data: Path = Path(".")
+    """The scene: a folder or file, as the format expects."""
+    background: Tuple[float, float, float] = (1.0, 1.0, 1.0)
+    """RGB in [0, 1] that transparent pixels are composited on (white by default)."""
+    scene_radius: float = 1.0
+    """Radius of the bounding sphere at the origin that holds the object (unless the data says otherwise)."""
+    image_scale: float = 1.0
+    """Resize every image by this factor on load (e.g. 0.5 to train at half resolution)."""
+
+
+class DataParser:
+    """Reads a scene into :class:`DataparserOutputs` for a split ("train" or "test")."""
+
+    config: DataParserConfig
+
+    def __init__(self, config: DataParserConfig) -> None:
+        self.config = config
+
+    def get_outputs(self, split: str = "train") -> DataparserOutputs:
+        raise NotImplementedError

@@ -1,0 +1,171 @@
+"""The nerfstudio / Blender ``transforms.json`` layout.
+
+A scene folder holds ``transforms_train.json`` and ``transforms_test.json`` (Blender splits) or a
+single ``transforms.json`` (every frame is a training frame). Intrinsics come from ``camera_angle_x``
+(Blender) or ``fl_x, fl_y, cx, cy, w, h`` (nerfstudio), at the top level or per frame. Each frame has
+``file_path`` (relative to the json; ``.png`` is added when it has no extension) and a 4x4
+``transform_matrix`` in OpenGL axes. Optional keys of ours: ``scene_radius`` (bounding sphere),
+``camera_type`` (``perspective`` or ``orthographic``) and ``pixel_offset``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Type
+
+import numpy as np
+import torch
+
+from va_plugin.cameras import PERSPECTIVE, Cameras, opengl_to_opencv
+from va_plugin.data.dataparsers.base import DataParser, DataParserConfig, DataparserOutputs
+from va_plugin.data.images import read_image, resize, split_alpha
+from va_plugin.errors import DataError
+
+SPLIT_FILES = {"train": "transforms_train.json", "test": "transforms_test.json"}
+
+
+def _load_json(path: Path) -> Dict[str, Any]:
+    try:
+        with open(path, "r", encoding="utf-8") as handle:
+            meta = json.load(handle)
+    except json.JSONDecodeError as exc:
+        raise DataError(f"{path} is not valid JSON ({exc.msg} at line {exc.lineno})") from None
+    except UnicodeDecodeError:
+        raise DataError(f"{path} is not a text file") from None
+    if not isinstance(meta, dict):
+        raise DataError(f"{path} must hold a JSON object with a 'frames' list")
+    return meta
+
+
+def find_split_file(root: Path, split: str) -> Optional[Path]:
+    """The json for a split, or None when the scene has no such split."""
+    if root.is_file():
+        return root if split == "train" else None
+    if not root.is_dir():
+        raise DataError(f"data folder not found: {root}")
+    split_file = root / SPLIT_FILES.get(split, f"transforms_{split}.json")
+    if split_file.is_file():
+        return split_file
+    single = root / "transforms.json"
+    if single.is_file():
+        return single if split == "train" else None
+    if split == "train":
+        raise DataError(f"{root} holds neither transforms_train.json nor transforms.json")
+    return None
+
+
+def _resolve_image(json_dir: Path, file_path: str) -> Path:
+    path = (json_dir / file_path).resolve()
+    if path.suffix == "" and not path.exists():
+        path = path.with_suffix(".png")
+    return path
+
+
+def _intrinsics(meta: Dict[str, Any], frame: Dict[str, Any], width: int, height: int, where: str):
+    """fx, fy, cx, cy of a frame from its own keys or the file's top-level keys."""
+    def pick(key):
+        return frame.get(key, meta.get(key))
+
+    angle_x = pick("camera_angle_x")
+    fl_x, fl_y = pick("fl_x"), pick("fl_y")
+    if fl_x is None and angle_x is None:
+        raise DataError(f"{where}: no intrinsics (need camera_angle_x or fl_x/fl_y/cx/cy)")
+    if fl_x is None:
+        fl_x = 0.5 * width / math.tan(0.5 * float(angle_x))
+    fl_y = fl_x if fl_y is None else fl_y
+    cx, cy = pick("cx"), pick("cy")
+    cx = width / 2.0 if cx is None else cx
+    cy = height / 2.0 if cy is None else cy
+    values = [float(v) for v in (fl_x, fl_y, cx, cy)]
+    if not all(math.isfinite(v) for v in values) or values[0] <= 0 or values[1] <= 0:
+        raise DataError(f"{where}: intrinsics must be finite with positive focal lengths, got {values}")
+    return values
+
+
+@dataclass
+class TransformsDataParserConfig(DataParserConfig):
+    """Reads a scene in the ``transforms.json`` layout."""
+
+    _target: Type = field(default_factory=lambda: TransformsDataParser)
+
+
+class TransformsDataParser(DataParser):
+    config: TransformsDataParserConfig
+
+    def get_outputs(self, split: str = "train") -> Optional[DataparserOutputs]:
+        root = Path(self.config.data)
+        json_path = find_split_file(root, split)
+        if json_path is None:
+            return None
+        meta = _load_json(json_path)
+        frames = meta.get("frames")
+        if not isinstance(frames, list) or not frames:
+            raise DataError(f"{json_path} has no frames")
+        images, masks, poses, intrinsics, paths = [], [], [], [], []
+        size = None
+        for k, frame in enumerate(frames):
+            where = f"{json_path.name} frame {k}"
+            if "file_path" not in frame or "transform_matrix" not in frame:
+                raise DataError(f"{where}: needs file_path and transform_matrix")
+            path = _resolve_image(json_path.parent, str(frame["file_path"]))
+            image = read_image(path)
+            width = int(frame.get("w", meta.get("w", image.shape[1])))
+            height = int(frame.get("h", meta.get("h", image.shape[0])))
+            if (image.shape[1], image.shape[0]) != (width, height):
+                raise DataError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but the json says {width}x{height}")
+            if size is None:
+                size = (width, height)
+            elif size != (width, height):
+                raise DataError(f"images differ in size: {paths[0]} is {size[0]}x{size[1]}, {path} is {width}x{height}")
+            matrix = np.asarray(frame["transform_matrix"], dtype=np.float64)
+            if matrix.shape not in ((4, 4), (3, 4)):
+                raise DataError(f"{where}: transform_matrix must be 4x4, got shape {list(matrix.shape)}")
+            rgb, mask = split_alpha(image, self.config.background)
+            images.append(rgb)
+            masks.append(mask)
+            poses.append(matrix[:3, :4])
+            intrinsics.append(_intrinsics(meta, frame, width, height, where))
+            paths.append(path)
+        has_masks = all(m is not None for m in masks)
+        c2w = opengl_to_opencv(torch.tensor(np.stack(poses), dtype=torch.float32))
+        fx, fy, cx, cy = torch.tensor(intrinsics, dtype=torch.float32).unbind(-1)
+        cameras = Cameras(c2w, fx, fy, cx, cy, size[0], size[1],
+                          camera_type=str(meta.get("camera_type", PERSPECTIVE)),
+                          pixel_offset=float(meta.get("pixel_offset", 0.5)))
+        images_np, masks_np = np.stack(images), np.stack(masks) if has_masks else None
+        if self.config.image_scale != 1.0:
+            cameras = cameras.scaled(self.config.image_scale)
+            images_np = np.stack([resize(im, cameras.width, cameras.height) for im in images_np])
+            if masks_np is not None:
+                masks_np = np.stack([resize(m, cameras.width, cameras.height) for m in masks_np])
+        radius = float(meta.get("scene_radius", self.config.scene_radius))
+        metadata = {"json": str(json_path)}
+        scene_root = json_path.parent
+        for name in ("scene.json",):
+            if (scene_root / name).is_file():
+                metadata["scene"] = _load_json(scene_root / name)
+        return DataparserOutputs(
+            images=torch.from_numpy(images_np).float(),
+            masks=torch.from_numpy(masks_np).float() if masks_np is not None else None,
+            cameras=cameras, scene_radius=radius, background=tuple(self.config.background),
+            image_paths=paths, metadata=metadata)
+
+
+def frames_to_json(cameras: Cameras, file_paths: List[str], extra: Optional[Dict[str, Any]] = None
+                   ) -> Dict[str, Any]:
+    """The inverse of the parser: a ``transforms.json`` dict for ``cameras`` (used by scene writers)."""
+    gl = opengl_to_opencv(cameras.c2w)  # the flip is its own inverse
+    frames = []
+    for i, file_path in enumerate(file_paths):
+        matrix = torch.eye(4)
+        matrix[:3, :4] = gl[i]
+        frames.append({"file_path": file_path, "transform_matrix": matrix.tolist(),
+                       "fl_x": float(cameras.fx[i]), "fl_y": float(cameras.fy[i]),
+                       "cx": float(cameras.cx[i]), "cy": float(cameras.cy[i])})
+    meta = {"w": cameras.width, "h": cameras.height, "camera_type": cameras.camera_type,
+            "pixel_offset": cameras.pixel_offset, "frames": frames}
+    meta.update(extra or {})
+    return meta

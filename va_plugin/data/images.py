@@ -1,0 +1,77 @@
+"""Reading images with clear errors, and compositing them on a background."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional, Sequence, Tuple
+
+import cv2
+import numpy as np
+
+from va_plugin.errors import DataError
+
+
+def read_image(path: Path) -> np.ndarray:
+    """An image as float32 ``[H, W, C]`` in [0, 1], C = 3 (RGB) or 4 (RGBA).
+
+    Accepts 8- and 16-bit PNG/JPEG/etc. Raises :class:`DataError` for a missing, truncated or
+    non-image file.
+    """
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"image not found: {path}")
+    raw = np.fromfile(str(path), dtype=np.uint8)
+    image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED) if raw.size else None
+    if image is None:
+        raise DataError(f"cannot decode image (corrupt, truncated or not an image): {path}")
+    if image.dtype == np.uint16:
+        image = image.astype(np.float32) / 65535.0
+    elif image.dtype == np.uint8:
+        image = image.astype(np.float32) / 255.0
+    else:
+        image = image.astype(np.float32)
+    if image.ndim == 2:
+        image = np.repeat(image[:, :, None], 3, axis=2)
+    if image.shape[2] == 3:
+        image = image[:, :, ::-1]
+    elif image.shape[2] == 4:
+        image = image[:, :, [2, 1, 0, 3]]
+    else:
+        raise DataError(f"image has {image.shape[2]} channels, expected gray, RGB or RGBA: {path}")
+    if not np.isfinite(image).all():
+        raise DataError(f"image contains NaN or infinite values: {path}")
+    return np.ascontiguousarray(np.clip(image, 0.0, 1.0))
+
+
+def write_image(path: Path, image: np.ndarray) -> None:
+    """Write float ``[H, W, 3|4]`` in [0, 1] (or uint8) as an 8-bit image; format by extension."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    if image.dtype != np.uint8:
+        image = (np.clip(image, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
+    if image.ndim == 3 and image.shape[2] == 3:
+        image = image[:, :, ::-1]
+    elif image.ndim == 3 and image.shape[2] == 4:
+        image = image[:, :, [2, 1, 0, 3]]
+    if not cv2.imwrite(str(path), np.ascontiguousarray(image)):
+        raise DataError(f"cannot write image: {path}")
+
+
+def split_alpha(image: np.ndarray, background: Sequence[float]) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+    """Composite an RGBA image on ``background``; returns RGB ``[H, W, 3]`` and mask ``[H, W, 1]``.
+
+    An RGB image is returned as it is, with no mask.
+    """
+    if image.shape[2] == 3:
+        return image, None
+    alpha = image[:, :, 3:4]
+    rgb = image[:, :, :3] * alpha + np.asarray(background, dtype=np.float32) * (1.0 - alpha)
+    return rgb.astype(np.float32), alpha.astype(np.float32)
+
+
+def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
+    """Area-resample an image to ``width x height`` (keeps float and channel count)."""
+    if image.shape[1] == width and image.shape[0] == height:
+        return image
+    out = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
+    return out[:, :, None] if out.ndim == 2 else out

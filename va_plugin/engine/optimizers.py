@@ -1,0 +1,36 @@
+"""Optimizer and learning-rate schedule configs, keyed by parameter group."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+
+@dataclass
+class OptimizerConfig:
+    """Adam for one parameter group."""
+
+    lr: float = 5e-4
+    """Base learning rate of the group."""
+    eps: float = 1e-15
+    """Adam's epsilon (fp32 only: fp16 would round it to 0)."""
+    weight_decay: float = 0.0
+    """L2 weight decay."""
+
+
+@dataclass
+class SchedulerConfig:
+    """Linear warm-up, then cosine decay to ``final_fraction`` of the base rate."""
+
+    warmup_steps: int = 100
+    """Steps of linear warm-up from 0."""
+    final_fraction: float = 0.05
+    """Learning rate at the last step, as a fraction of the base rate."""
+
+    def factor(self, step: int, max_steps: int) -> float:
+        if self.warmup_steps > 0 and step < self.warmup_steps:
+            return (step + 1) / self.warmup_steps
+        span = max(1, max_steps - self.warmup_steps)
+        progress = min(1.0, max(0.0, (step - self.warmup_steps) / span))
+        cosine = 0.5 * (1.0 + math.cos(math.pi * progress))
+        return self.final_fraction + (1.0 - self.final_fraction) * cosine

@@ -1,0 +1,277 @@
+"""The host trainer: optimizers per parameter group, schedules, callbacks, logs and checkpoints."""
+
+from __future__ import annotations
+
+import json
+import os
+import random
+import time
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Type
+
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from va_plugin.config import InstantiateConfig, to_dict
+from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
+from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
+from va_plugin.errors import CheckpointError, ConfigError
+from va_plugin.pipelines.base import Pipeline, PipelineConfig
+from va_plugin.utils.device import pick_device
+
+CHECKPOINT_DIR = "checkpoints"
+CHECKPOINT_GLOB = "step-*.ckpt"
+
+
+@dataclass
+class TrainerConfig(InstantiateConfig):
+    """Everything a training run needs: the method's pipeline, its optimizers and the run's options."""
+
+    _target: Type = field(default_factory=lambda: Trainer)
+    method_name: str = "unnamed"
+    """Registered name of the method (checked when resuming)."""
+    pipeline: PipelineConfig = field(default_factory=PipelineConfig)
+    """Data manager and model."""
+    optimizers: Dict[str, OptimizerConfig] = field(default_factory=lambda: {"fields": OptimizerConfig()})
+    """One optimizer config per parameter group the model reports."""
+    scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
+    """Learning-rate schedule shared by every group."""
+    max_steps: int = 2000
+    """Training steps (the step budget)."""
+    seed: int = 42
+    """Seed of every random generator (the paper's 42)."""
+    device: str = "auto"
+    """"auto" (CUDA when present), "cpu" or "cuda[:N]"."""
+    output_dir: Path = Path("outputs/run")
+    """Run folder: config, metrics log, checkpoints and exports."""
+    checkpoint_every: int = 500
+    """Steps between checkpoints (one is always written at the end)."""
+    keep_checkpoints: int = 2
+    """How many recent checkpoints to keep."""
+    log_every: int = 25
+    """Steps between lines of the metrics log."""
+    eval_every: int = 0
+    """Steps between renders of the held-out views (0: only at the end)."""
+    eval_views: int = 2
+    """Held-out views rendered by the periodic evaluation."""
+    num_threads: int = 0
+    """CPU threads for torch (0: torch's default)."""
+    progress: bool = True
+    """Show a progress bar."""
+
+
+def seed_everything(seed: int) -> None:
+    random.seed(seed)
+    np.random.seed(seed % (2 ** 32))
+    torch.manual_seed(seed)
+
+
+def atomic_save(obj: Any, path: Path) -> None:
+    """Write to a temporary file in the same folder, then rename: never a half-written file in place."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.name + ".tmp")
+    with open(tmp, "wb") as handle:
+        torch.save(obj, handle)
+        handle.flush()
+        os.fsync(handle.fileno())
+    os.replace(tmp, path)
+
+
+def list_checkpoints(run_dir: Path) -> List[Path]:
+    """Checkpoints of a run, oldest first."""
+    return sorted((Path(run_dir) / CHECKPOINT_DIR).glob(CHECKPOINT_GLOB))
+
+
+def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> Dict[str, Any]:
+    """The newest readable checkpoint of a run; falls back to older ones when the newest is corrupt."""
+    run_dir = Path(run_dir)
+    if not run_dir.is_dir():
+        raise CheckpointError(f"run folder not found: {run_dir}")
+    candidates = list_checkpoints(run_dir)
+    if not candidates:
+        raise CheckpointError(f"{run_dir} holds no checkpoint (expected {CHECKPOINT_DIR}/{CHECKPOINT_GLOB})")
+    problems = []
+    for path in reversed(candidates):
+        try:
+            state = torch.load(path, map_location=map_location, weights_only=False)
+            if not isinstance(state, dict) or "model" not in state or "step" not in state:
+                raise ValueError("not a va-plugin checkpoint")
+            if problems:
+                warnings.warn(f"skipped unreadable checkpoint(s): {'; '.join(problems)}")
+            state["path"] = str(path)
+            return state
+        except Exception as exc:  # a corrupt file can raise nearly anything while unpickling
+            problems.append(f"{path.name} ({type(exc).__name__})")
+    raise CheckpointError(f"no readable checkpoint in {run_dir}: {'; '.join(problems)}")
+
+
+class Trainer:
+    """Runs the training loop of a :class:`TrainerConfig`."""
+
+    def __init__(self, config: TrainerConfig) -> None:
+        self.config = config
+        if config.max_steps < 1:
+            raise ConfigError(f"max_steps must be at least 1, got {config.max_steps}")
+        if config.num_threads > 0:
+            torch.set_num_threads(config.num_threads)
+        self.device = pick_device(config.device)
+        seed_everything(config.seed)
+        self.run_dir = Path(config.output_dir)
+        self.pipeline = config.pipeline.setup(device=self.device, max_steps=config.max_steps)
+        self.model = self.pipeline.model
+        self.optimizer = self._make_optimizer()
+        self.lr_multipliers: Dict[str, float] = {name: 1.0 for name in self.group_names}
+        self.callbacks: List[TrainingCallback] = list(self.model.training_callbacks())
+        self.step = 0
+        self.train_seconds = 0.0
+        self.bad_steps = 0
+        self._warned_bad_step = False
+
+    # -- setup ----------------------------------------------------------------------------------
+    def _make_optimizer(self) -> torch.optim.Optimizer:
+        groups = self.model.get_param_groups()
+        missing = sorted(set(groups) - set(self.config.optimizers))
+        if missing:
+            raise ConfigError(f"no optimizer configured for parameter group(s) {missing}; "
+                              f"configured: {sorted(self.config.optimizers)}")
+        self.group_names = [name for name in groups if groups[name]]
+        param_groups = []
+        for name in self.group_names:
+            opt = self.config.optimizers[name]
+            param_groups.append({"params": groups[name], "lr": opt.lr, "eps": opt.eps,
+                                 "weight_decay": opt.weight_decay, "name": name})
+        return torch.optim.Adam(param_groups)
+
+    def _set_learning_rates(self, step: int) -> None:
+        factor = self.config.scheduler.factor(step, self.config.max_steps)
+        for group in self.optimizer.param_groups:
+            base = self.config.optimizers[group["name"]].lr
+            group["lr"] = base * factor * self.lr_multipliers.get(group["name"], 1.0)
+
+    # -- checkpoints ----------------------------------------------------------------------------
+    def state_dict(self) -> Dict[str, Any]:
+        return {
+            "method_name": self.config.method_name,
+            "step": self.step,
+            "train_seconds": self.train_seconds,
+            "model": self.model.state_dict(),
+            "optimizer": self.optimizer.state_dict(),
+            "lr_multipliers": dict(self.lr_multipliers),
+            "datamanager": self.pipeline.datamanager.state_dict(),
+            "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),
+                    "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None},
+            "config": to_dict(self.config),
+            "config_object": self.config,
+        }
+
+    def save_checkpoint(self) -> Path:
+        path = self.run_dir / CHECKPOINT_DIR / f"step-{self.step:07d}.ckpt"
+        atomic_save(self.state_dict(), path)
+        for old in list_checkpoints(self.run_dir)[:-max(1, self.config.keep_checkpoints)]:
+            old.unlink(missing_ok=True)
+        return path
+
+    def load_state(self, state: Dict[str, Any]) -> None:
+        if state.get("method_name") != self.config.method_name:
+            raise CheckpointError(f"checkpoint {state.get('path')} is of method {state.get('method_name')!r}, "
+                                  f"not {self.config.method_name!r}")
+        try:
+            self.model.load_state_dict(state["model"])
+            self.optimizer.load_state_dict(state["optimizer"])
+        except (RuntimeError, ValueError, KeyError) as exc:
+            first = str(exc).strip().splitlines()[0]
+            raise CheckpointError(f"checkpoint {state.get('path')} does not fit this config ({first})") from None
+        self.step = int(state["step"])
+        self.train_seconds = float(state.get("train_seconds", 0.0))
+        self.lr_multipliers.update(state.get("lr_multipliers", {}))
+        self.pipeline.datamanager.load_state_dict(state["datamanager"])
+        rng = state["rng"]
+        torch.set_rng_state(rng["torch"])
+        np.random.set_state(rng["numpy"])
+        random.setstate(rng["python"])
+        if rng.get("cuda") is not None and torch.cuda.is_available():
+            torch.cuda.set_rng_state_all(rng["cuda"])
+
+    def resume(self) -> bool:
+        """Continue from the newest checkpoint of the run folder; False when there is none."""
+        if not list_checkpoints(self.run_dir):
+            return False
+        self.load_state(load_checkpoint(self.run_dir, map_location=self.device))
+        return True
+
+    # -- logging --------------------------------------------------------------------------------
+    def _log(self, record: Dict[str, Any]) -> None:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.run_dir / "metrics.jsonl", "a", encoding="utf-8") as handle:
+            handle.write(json.dumps(record) + "\n")
+
+    def _write_config(self) -> None:
+        self.run_dir.mkdir(parents=True, exist_ok=True)
+        with open(self.run_dir / "config.json", "w", encoding="utf-8") as handle:
+            json.dump(to_dict(self.config), handle, indent=2)
+
+    # -- the loop -------------------------------------------------------------------------------
+    def _run_callbacks(self, where: str) -> None:
+        for callback in self.callbacks:
+            if callback.where == where:
+                callback(self.step, self)
+
+    def _step(self) -> Dict[str, float]:
+        self._set_learning_rates(self.step)
+        self.optimizer.zero_grad(set_to_none=True)
+        loss_dict, metrics = self.pipeline.train_step(self.step)
+        loss = sum(loss_dict.values())
+        finite = bool(torch.isfinite(loss))
+        if finite:
+            loss.backward()
+            finite = all(p.grad is None or bool(torch.isfinite(p.grad).all())
+                         for group in self.optimizer.param_groups for p in group["params"])
+        if finite:
+            self.optimizer.step()
+        else:
+            self.bad_steps += 1
+            self.optimizer.zero_grad(set_to_none=True)
+            if not self._warned_bad_step:
+                warnings.warn(f"step {self.step}: non-finite loss or gradient; the step was skipped "
+                              "(further skips are counted in the log as bad_steps)")
+                self._warned_bad_step = True
+        record = {"loss": float(loss.detach()) if finite else float("nan")}
+        record.update({f"loss_{k}": float(v.detach()) for k, v in loss_dict.items()})
+        record.update(metrics)
+        return record
+
+    def train(self) -> Dict[str, Any]:
+        """Train to ``max_steps`` (from the current step); returns the final log record."""
+        cfg = self.config
+        self._write_config()
+        bar = tqdm(total=cfg.max_steps, initial=self.step, disable=not cfg.progress, dynamic_ncols=True,
+                   desc=cfg.method_name, leave=True)
+        record: Dict[str, Any] = {}
+        recent: List[float] = []
+        while self.step < cfg.max_steps:
+            start = time.perf_counter()
+            self._run_callbacks(BEFORE_STEP)
+            record = self._step()
+            self._run_callbacks(AFTER_STEP)
+            elapsed = time.perf_counter() - start
+            self.train_seconds += elapsed
+            recent = (recent + [elapsed])[-20:]
+            self.step += 1
+            bar.update(1)
+            record.update(self.model.diagnostics())
+            record.update({"step": self.step, "train_seconds": round(self.train_seconds, 3),
+                           "it_per_s": round(len(recent) / max(sum(recent), 1e-9), 3), "bad_steps": self.bad_steps})
+            if self.step % cfg.log_every == 0 or self.step == cfg.max_steps:
+                self._log(record)
+            bar.set_postfix({k: f"{record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record})
+            if cfg.eval_every > 0 and self.step % cfg.eval_every == 0 and self.step < cfg.max_steps:
+                metrics, _ = self.pipeline.evaluate_views(cfg.eval_views)
+                if metrics:
+                    self._log({"step": self.step, **metrics})
+            if self.step % cfg.checkpoint_every == 0 or self.step == cfg.max_steps:
+                self.save_checkpoint()
+        bar.close()
+        return record

@@ -1,0 +1,94 @@
+"""Marching-cubes meshes with vertex colours from a trained model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import torch
+import trimesh
+
+from va_plugin.errors import VAError
+
+MESH_FORMATS = (".ply", ".obj", ".glb")
+
+
+@torch.no_grad()
+def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: int = 65536) -> np.ndarray:
+    """``fn`` on a ``resolution^3`` grid over [-bound, bound]^3, as ``[R, R, R]`` (x, y, z order)."""
+    axis = torch.linspace(-bound, bound, resolution, device=device)
+    values = []
+    for xs in torch.split(axis, max(1, chunk // (resolution * resolution))):
+        grid = torch.stack(torch.meshgrid(xs, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+        values.append(fn(grid).reshape(len(xs), resolution, resolution).float().cpu())
+    return torch.cat(values).numpy()
+
+
+def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, with_color: bool = True,
+                 largest_component: bool = False) -> trimesh.Trimesh:
+    """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound.
+
+    Raises VAError when the field has no surface inside the bound (all inside or all outside).
+    """
+    from skimage.measure import marching_cubes
+
+    device = next(model.parameters()).device
+    radius = float(model.scene.scene_radius)
+    bound = radius if bound is None else bound
+
+    def clipped(points: torch.Tensor) -> torch.Tensor:
+        # outside the bounding sphere counts as empty, so no surface appears beyond the bound
+        return torch.maximum(model.mesh_field(points), points.norm(dim=-1) - radius)
+
+    was_training = model.training
+    model.eval()
+    try:
+        values = sample_grid(clipped, resolution, bound, device)
+    finally:
+        model.train(was_training)
+    if not np.isfinite(values).all():
+        raise VAError("the field holds NaN or infinite values; the run diverged, so there is no mesh to extract")
+    if values.min() >= 0.0 or values.max() <= 0.0:
+        raise VAError("the field has no surface inside the scene bound (no zero crossing); "
+                      "the run may have diverged or trained too briefly")
+    spacing = 2.0 * bound / (resolution - 1)
+    verts, faces, _, _ = marching_cubes(values, level=0.0, spacing=(spacing,) * 3)
+    mesh = trimesh.Trimesh(verts - bound, faces, process=True)
+    if mesh.volume < 0:
+        mesh.invert()
+    if largest_component:
+        parts = mesh.split(only_watertight=False)
+        if len(parts) > 1:
+            mesh = max(parts, key=lambda m: len(m.faces))
+    if with_color and len(mesh.vertices):
+        points = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32, device=device)
+        normals = torch.as_tensor(np.asarray(mesh.vertex_normals), dtype=torch.float32, device=device)
+        colors = []
+        model.eval()
+        try:
+            for p, n in zip(torch.split(points, 16384), torch.split(normals, 16384)):
+                colors.append(model.surface_color(p, n).clamp(0, 1).cpu())
+        finally:
+            model.train(was_training)
+        rgb = (torch.cat(colors).numpy() * 255 + 0.5).astype(np.uint8)
+        mesh.visual.vertex_colors = np.concatenate([rgb, np.full((len(rgb), 1), 255, np.uint8)], 1)
+    return mesh
+
+
+def write_mesh(mesh: trimesh.Trimesh, path: Path) -> Path:
+    """Write PLY, OBJ or GLB by extension (atomically: a temporary file, then a rename)."""
+    path = Path(path)
+    if path.suffix.lower() not in MESH_FORMATS:
+        raise VAError(f"unknown mesh format {path.suffix!r}; use one of {', '.join(MESH_FORMATS)}")
+    path.parent.mkdir(parents=True, exist_ok=True)
+    tmp = path.with_name(path.stem + ".tmp" + path.suffix)
+    mesh.export(tmp)
+    tmp.replace(path)
+    return path
+
+
+def export_run_mesh(pipeline, path: Path, resolution: int = 128, largest_component: bool = False) -> Path:
+    """Extract and write the mesh of a trained pipeline."""
+    mesh = extract_mesh(pipeline.model, resolution=resolution, largest_component=largest_component)
+    return write_mesh(mesh, path)

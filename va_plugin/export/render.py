@@ -1,0 +1,79 @@
+"""Rendering held-out views and turntables of a trained model."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import List
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from va_plugin.cameras import Cameras
+from va_plugin.data.images import write_image
+from va_plugin.rays import RayBundle
+
+
+def render_view(model, cameras: Cameras, index: int) -> np.ndarray:
+    """RGB ``[H, W, 3]`` float of one camera, rendered with the canonical (novel-view) path."""
+    cameras = cameras.to(next(model.parameters()).device)
+    views, rows, cols = cameras.pixel_grid(index)
+    origins, directions = cameras.generate_rays(views, rows, cols)
+    rays = RayBundle(origins, directions, torch.full_like(views, -1))
+    rgb = model.render_rays(rays, keys=("rgb",))["rgb"]
+    return rgb.reshape(cameras.height, cameras.width, 3).cpu().numpy()
+
+
+def turntable_cameras(n_frames: int, resolution: int, elevation_deg: float = 30.0) -> Cameras:
+    """Cameras circling the object on the SyncDreamer rig's orbit."""
+    from va_plugin.data.scenes.rig import orbit_cameras
+
+    return orbit_cameras([360.0 * k / n_frames for k in range(n_frames)], elevation_deg, resolution=resolution)
+
+
+def write_video(frames: List[np.ndarray], path: Path, fps: int = 12) -> Path:
+    """Write frames (float RGB) as an MP4 (mp4v) video."""
+    path = Path(path)
+    height, width = frames[0].shape[:2]
+    writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*"mp4v"), fps, (width, height))
+    for frame in frames:
+        writer.write((np.clip(frame, 0, 1)[:, :, ::-1] * 255 + 0.5).astype(np.uint8))
+    writer.release()
+    return path
+
+
+def render_turntable(model, out_dir: Path, n_frames: int = 24, resolution: int = 128, progress: bool = True
+                     ) -> List[Path]:
+    """PNG frames and ``turntable.mp4`` in ``out_dir``."""
+    out_dir = Path(out_dir)
+    cameras = turntable_cameras(n_frames, resolution)
+    frames, paths = [], []
+    for k in tqdm(range(n_frames), desc="turntable", disable=not progress):
+        frame = render_view(model, cameras, k)
+        frames.append(frame)
+        path = out_dir / f"frame_{k:03d}.png"
+        write_image(path, frame)
+        paths.append(path)
+    paths.append(write_video(frames, out_dir / "turntable.mp4"))
+    return paths
+
+
+def render_test_views(pipeline, out_dir: Path, scale: float = 1.0, max_views: int | None = None,
+                      progress: bool = True) -> List[Path]:
+    """Each held-out view rendered next to its ground truth: ``view_XXX.png`` (render | target)."""
+    test = pipeline.datamanager.test
+    if test is None:
+        return []
+    cameras = test.cameras.scaled(scale) if scale != 1.0 else test.cameras
+    count = len(test) if max_views is None else min(max_views, len(test))
+    paths = []
+    for i in tqdm(range(count), desc="test views", disable=not progress):
+        render = render_view(pipeline.model, cameras, i)
+        target = test.images[i].numpy()
+        if scale != 1.0:
+            target = cv2.resize(target, (cameras.width, cameras.height), interpolation=cv2.INTER_AREA)
+        path = Path(out_dir) / f"view_{i:03d}.png"
+        write_image(path, np.concatenate([render, target], axis=1))
+        paths.append(path)
+    return paths

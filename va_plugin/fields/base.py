@@ -1,0 +1,79 @@
+"""The Field interface shared by every backbone.
+
+A field answers two questions about a point: its geometry (an SDF value or a density, plus a
+geometry feature) and its colour. The colour path is split in two so that the view-adaptive wrapper
+can act between the halves: ``color_features`` is the shared extractor f_shared, ``decode_color``
+turns a feature of the same width into RGB.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Dict, List, Tuple
+
+import torch
+from torch import nn
+
+from va_plugin.config import InstantiateConfig
+
+
+@dataclass
+class FieldConfig(InstantiateConfig):
+    """Options every field has."""
+
+
+class Field(nn.Module):
+    """Base class of geometry + colour fields.
+
+    Subclasses set ``geometry_kind`` ("sdf" or "density") and ``feature_dim`` (width of f_shared).
+    """
+
+    geometry_kind: str = "sdf"
+    feature_dim: int = 0
+
+    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+        """``positions [..., 3]`` -> (SDF or raw density ``[..., 1]``, geometry feature ``[..., G]``)."""
+        raise NotImplementedError
+
+    def color_features(self, positions: torch.Tensor, directions: torch.Tensor, normals: torch.Tensor,
+                       geo_features: torch.Tensor) -> torch.Tensor:
+        """The shared colour feature f_shared ``[..., feature_dim]``."""
+        raise NotImplementedError
+
+    def decode_color(self, features: torch.Tensor) -> torch.Tensor:
+        """RGB in [0, 1] ``[..., 3]`` from a feature ``[..., feature_dim]``."""
+        raise NotImplementedError
+
+    def color(self, positions, directions, normals, geo_features, camera_indices=None) -> Dict[str, torch.Tensor]:
+        """RGB of samples; ``camera_indices`` (``[...]``, -1 for novel views) is ignored by plain fields."""
+        return {"rgb": self.decode_color(self.color_features(positions, directions, normals, geo_features))}
+
+    def param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        """Parameters keyed like the optimizer config."""
+        return {"fields": list(self.parameters())}
+
+
+class MLP(nn.Module):
+    """A plain MLP: ``n_layers`` hidden layers of ``width`` with an activation after each."""
+
+    def __init__(self, in_dim: int, width: int, n_layers: int, out_dim: int,
+                 activation: nn.Module | None = None, out_activation: nn.Module | None = None) -> None:
+        super().__init__()
+        dims = [in_dim] + [width] * n_layers
+        self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
+        self.activation = activation if activation is not None else nn.ReLU()
+        self.out = nn.Linear(dims[-1], out_dim) if out_dim > 0 else None
+        self.out_activation = out_activation
+
+    def features(self, x: torch.Tensor) -> torch.Tensor:
+        for layer in self.hidden:
+            x = self.activation(layer(x))
+        return x
+
+    def head(self, h: torch.Tensor) -> torch.Tensor:
+        y = self.out(h)
+        return self.out_activation(y) if self.out_activation is not None else y
+
+    def forward(self, x: torch.Tensor) -> torch.Tensor:
+        h = self.features(x)
+        return h if self.out is None else self.head(h)

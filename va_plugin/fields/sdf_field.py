@@ -1,0 +1,82 @@
+"""The NeuS SDF field: an SDF network with geometric initialisation and a colour network."""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Tuple, Type
+
+import torch
+from torch import nn
+
+from va_plugin.fields.base import MLP, Field, FieldConfig
+from va_plugin.fields.encodings.positional import PositionalEncoding
+
+
+@dataclass
+class SDFFieldConfig(FieldConfig):
+    """A NeuS field: SDF network on gamma(x) and a colour network on (x, normal, gamma(d), feature)."""
+
+    _target: Type = field(default_factory=lambda: SDFField)
+    position_frequencies: int = 6
+    """Frequency bands of gamma(x) (the paper uses 6)."""
+    direction_frequencies: int = 4
+    """Frequency bands of gamma(d) (the paper uses 4)."""
+    sdf_width: int = 256
+    """Hidden width of the SDF network (the paper's shared MLP: 4 x 256)."""
+    sdf_layers: int = 4
+    """Hidden layers of the SDF network."""
+    geo_feature_dim: int = 64
+    """Width of the geometry feature passed to the colour network."""
+    color_width: int = 128
+    """Hidden width of the colour network; f_shared has this width."""
+    color_layers: int = 2
+    """Hidden layers of the colour network."""
+    init_radius: float = 0.5
+    """Radius of the sphere the SDF starts as (geometric initialisation)."""
+    softplus_beta: float = 100.0
+    """Sharpness of the SDF network's softplus activations."""
+
+
+class SDFField(Field):
+    geometry_kind = "sdf"
+
+    def __init__(self, config: SDFFieldConfig) -> None:
+        super().__init__()
+        self.config = config
+        self.position_encoding = PositionalEncoding(3, config.position_frequencies)
+        self.direction_encoding = PositionalEncoding(3, config.direction_frequencies)
+        self.sdf_net = MLP(self.position_encoding.output_dim, config.sdf_width, config.sdf_layers,
+                           1 + config.geo_feature_dim, activation=nn.Softplus(beta=config.softplus_beta))
+        color_in = 3 + 3 + self.direction_encoding.output_dim + config.geo_feature_dim
+        self.color_net = MLP(color_in, config.color_width, config.color_layers, 3, out_activation=nn.Sigmoid())
+        self.feature_dim = config.color_width
+        self._geometric_init()
+
+    def _geometric_init(self) -> None:
+        """Start as the SDF of a sphere of ``init_radius`` (IGR/SAL initialisation, as in NeuS)."""
+        layers = list(self.sdf_net.hidden)
+        with torch.no_grad():
+            for k, layer in enumerate(layers):
+                nn.init.normal_(layer.weight, 0.0, math.sqrt(2.0) / math.sqrt(layer.out_features))
+                nn.init.zeros_(layer.bias)
+                if k == 0:
+                    layer.weight[:, 3:] = 0.0  # frequencies start silent: the sphere comes from x alone
+            out = self.sdf_net.out
+            nn.init.normal_(out.weight, math.sqrt(math.pi) / math.sqrt(out.in_features), 1e-4)
+            nn.init.constant_(out.bias, -self.config.init_radius)
+
+    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+        out = self.sdf_net(self.position_encoding(positions))
+        return out[..., :1], out[..., 1:]
+
+    def sdf(self, positions: torch.Tensor) -> torch.Tensor:
+        """SDF only, ``[..., 1]``."""
+        return self.geometry(positions)[0]
+
+    def color_features(self, positions, directions, normals, geo_features) -> torch.Tensor:
+        x = torch.cat([positions, normals, self.direction_encoding(directions), geo_features], dim=-1)
+        return self.color_net.features(x)
+
+    def decode_color(self, features: torch.Tensor) -> torch.Tensor:
+        return self.color_net.head(features)

@@ -1,0 +1,55 @@
+"""NeuS-specific numerics: the learned sharpness inv_s and the SDF-to-alpha conversion."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+INV_S_MIN, INV_S_MAX = 1e-6, 1e6
+
+
+class SingleVariance(nn.Module):
+    """One learned scalar ``v`` with ``inv_s = exp(10 v)``, clamped to [1e-6, 1e6]."""
+
+    def __init__(self, init: float = 0.3) -> None:
+        super().__init__()
+        self.variance = nn.Parameter(torch.tensor(float(init)))
+
+    def inv_s(self) -> torch.Tensor:
+        return torch.exp((10.0 * self.variance).clamp(-13.8, 13.8)).clamp(INV_S_MIN, INV_S_MAX)
+
+
+def neus_alpha(sdf: torch.Tensor, true_cos: torch.Tensor, deltas: torch.Tensor, inv_s: torch.Tensor,
+               cos_anneal_ratio: float) -> torch.Tensor:
+    """Alpha of each section from the SDF at its mid-point (NeuS, Wang et al. 2021, eq. 13).
+
+    The SDF at the section ends is estimated from the mid-point value and the ray/normal cosine;
+    the cosine is annealed from "always half-visible" to the true cosine so early training does not
+    see through surfaces.
+
+    Args:
+        sdf, true_cos, deltas: ``[n_rays, n_samples]``.
+        inv_s: scalar tensor.
+    Returns:
+        alpha ``[n_rays, n_samples]`` in [0, 1].
+    """
+    iter_cos = -(torch.relu(-true_cos * 0.5 + 0.5) * (1.0 - cos_anneal_ratio)
+                 + torch.relu(-true_cos) * cos_anneal_ratio)
+    prev_sdf = sdf - iter_cos * deltas * 0.5
+    next_sdf = sdf + iter_cos * deltas * 0.5
+    prev_cdf = torch.sigmoid(prev_sdf * inv_s)
+    next_cdf = torch.sigmoid(next_sdf * inv_s)
+    return ((prev_cdf - next_cdf + 1e-5) / (prev_cdf + 1e-5)).clamp(0.0, 1.0)
+
+
+def section_alpha(sdf_edges: torch.Tensor, inv_s: float) -> torch.Tensor:
+    """Alpha of each section from the SDF at its two ends (used when up-sampling, no normals needed).
+
+    Args:
+        sdf_edges: ``[n_rays, n_samples + 1]`` SDF at the section edges.
+    Returns:
+        ``[n_rays, n_samples]``.
+    """
+    prev_cdf = torch.sigmoid(sdf_edges[:, :-1] * inv_s)
+    next_cdf = torch.sigmoid(sdf_edges[:, 1:] * inv_s)
+    return ((prev_cdf - next_cdf + 1e-5) / (prev_cdf + 1e-5)).clamp(0.0, 1.0)

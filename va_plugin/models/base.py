@@ -1,0 +1,112 @@
+"""The Model interface: rays in, rendered outputs and losses out."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Callable, Dict, List, Optional, Sequence
+
+import torch
+from torch import nn
+
+from va_plugin.config import InstantiateConfig
+from va_plugin.rays import RayBundle
+
+
+@dataclass
+class SceneInfo:
+    """What a model needs to know about its scene."""
+
+    num_train_views: int
+    scene_radius: float
+    background: Sequence[float] = (1.0, 1.0, 1.0)
+    max_steps: int = 1000
+
+
+@dataclass
+class ModelConfig(InstantiateConfig):
+    """Options every model has."""
+
+    rgb_loss: str = "l2"
+    """Photometric loss: "l2" (the paper's eq. 13) or "l1"."""
+    eval_chunk: int = 2048
+    """Rays rendered at once when rendering whole images."""
+
+
+ExtraLoss = Callable[[Dict[str, torch.Tensor], Dict[str, torch.Tensor], int], Dict[str, torch.Tensor]]
+
+
+class Model(nn.Module):
+    """Base class of models. Subclasses implement ``get_outputs`` and ``get_loss_dict``."""
+
+    config: ModelConfig
+
+    def __init__(self, config: ModelConfig, scene: SceneInfo) -> None:
+        super().__init__()
+        self.config = config
+        self.scene = scene
+        self.register_buffer("background", torch.tensor(list(scene.background), dtype=torch.float32),
+                             persistent=False)
+        self.step = 0
+        self.extra_losses: List[ExtraLoss] = []
+        """Hooks adding loss terms (e.g. a score-distillation loss): ``(outputs, batch, step) -> dict``."""
+
+    # -- training -------------------------------------------------------------------------------
+    def update_step(self, step: int) -> None:
+        """Called by the trainer before each step; schedules read ``self.step``."""
+        self.step = step
+
+    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def get_loss_dict(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]
+                      ) -> Dict[str, torch.Tensor]:
+        raise NotImplementedError
+
+    def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
+        for hook in self.extra_losses:
+            losses.update(hook(outputs, batch, self.step))
+        return losses
+
+    def get_metrics_dict(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]
+                         ) -> Dict[str, float]:
+        return {}
+
+    def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        raise NotImplementedError
+
+    def training_callbacks(self) -> List[object]:
+        """Callbacks the trainer runs (e.g. phase switches); the model knows nothing of the trainer."""
+        return []
+
+    def diagnostics(self) -> Dict[str, float]:
+        """Scalars worth logging (e.g. inv_s)."""
+        return {}
+
+    # -- evaluation and export ------------------------------------------------------------------
+    def render_rays(self, ray_bundle: RayBundle, keys: Sequence[str] = ("rgb", "accumulation", "depth")
+                    ) -> Dict[str, torch.Tensor]:
+        """Render many rays in chunks without building a graph; returns the chosen outputs."""
+        was_training = self.training
+        self.eval()
+        collected: Dict[str, List[torch.Tensor]] = {k: [] for k in keys}
+        try:
+            for start in range(0, len(ray_bundle), self.config.eval_chunk):
+                chunk = ray_bundle[start:start + self.config.eval_chunk]
+                outputs = self.get_outputs(chunk)
+                for k in keys:
+                    collected[k].append(outputs[k].detach())
+        finally:
+            self.train(was_training)
+        return {k: torch.cat(v) for k, v in collected.items()}
+
+    def mesh_field(self, points: torch.Tensor) -> torch.Tensor:
+        """A scalar ``[n]`` at points ``[n, 3]`` whose zero level set is the surface, negative inside."""
+        raise NotImplementedError
+
+    def surface_color(self, points: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+        """Canonical RGB ``[n, 3]`` of surface points seen head-on from outside (mesh vertex colours)."""
+        raise NotImplementedError
+
+
+def optional_tensor(batch: Dict[str, torch.Tensor], key: str) -> Optional[torch.Tensor]:
+    return batch.get(key)

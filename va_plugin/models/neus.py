@@ -1,0 +1,204 @@
+"""The NeuS surface model (Wang et al., 2021): SDF volume rendering with up-sampling."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Type
+
+import torch
+from torch import nn
+
+from va_plugin.fields.base import FieldConfig
+from va_plugin.fields.sdf_field import SDFFieldConfig
+from va_plugin.model_components import losses, renderers
+from va_plugin.model_components.neus import SingleVariance, neus_alpha, section_alpha
+from va_plugin.model_components.samplers import sample_pdf, uniform_edges
+from va_plugin.models.base import Model, ModelConfig, SceneInfo
+from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
+
+
+@dataclass
+class NeuSModelConfig(ModelConfig):
+    """NeuS: SDF field, learned inv_s, up-sampling inside the bounding sphere, eikonal and mask losses."""
+
+    _target: Type = field(default_factory=lambda: NeuSModel)
+    field: FieldConfig = field(default_factory=SDFFieldConfig)
+    """The field (an SDF field, or a view-adaptive wrapper around one)."""
+    n_samples: int = 32
+    """Uniform samples per ray."""
+    n_importance: int = 32
+    """Up-sampled samples per ray, added in ``up_sample_steps`` rounds."""
+    up_sample_steps: int = 2
+    """Rounds of up-sampling; round k uses inv_s = 64 * 2^k."""
+    skip_empty_rays: bool = True
+    """Skip rays whose SDF stays far from zero along every coarse sample (they render background).
+    A ray is skipped only when inv_s * (min coarse SDF - half a coarse step) > ``skip_margin``, so the
+    alpha it would get is below exp(-margin)."""
+    skip_margin: float = 12.0
+    """Safety margin of the empty-ray test, in units of 1/inv_s."""
+    variance_init: float = 0.3
+    """Initial v of inv_s = exp(10 v)."""
+    eikonal_weight: float = 0.1
+    """Weight of the eikonal loss."""
+    mask_weight: float = 0.1
+    """Weight of the mask loss against the foreground mask (0 turns it off)."""
+    cos_anneal_fraction: float = 0.1
+    """Share of the step budget over which the cosine term is annealed (0: no annealing)."""
+
+
+class NeuSModel(Model):
+    config: NeuSModelConfig
+
+    def __init__(self, config: NeuSModelConfig, scene: SceneInfo) -> None:
+        super().__init__(config, scene)
+        self.field = config.field.setup(num_train_views=scene.num_train_views) \
+            if _wants_views(config.field) else config.field.setup()
+        if self.field.geometry_kind != "sdf":
+            raise ValueError("NeuSModel needs a field whose geometry is an SDF")
+        self.variance = SingleVariance(config.variance_init)
+
+    # -- schedules ------------------------------------------------------------------------------
+    def cos_anneal_ratio(self) -> float:
+        if not self.training:
+            return 1.0
+        span = self.config.cos_anneal_fraction * self.scene.max_steps
+        return 1.0 if span <= 0 else min(1.0, self.step / span)
+
+    def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        groups = self.field.param_groups()
+        groups.setdefault("fields", []).extend(self.variance.parameters())
+        return groups
+
+    def diagnostics(self) -> Dict[str, float]:
+        return {"inv_s": float(self.variance.inv_s().detach())}
+
+    # -- sampling -------------------------------------------------------------------------------
+    @torch.no_grad()
+    def _coarse(self, ray_bundle: RayBundle) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """Coarse edges ``[n_rays, n_samples + 2]``, their SDF, and which rays may hit a surface ``[n_rays]``."""
+        cfg = self.config
+        nears, fars = ray_bundle.nears, ray_bundle.fars
+        coarse = uniform_edges(nears, fars, cfg.n_samples, jitter=self.training)
+        edges = torch.cat([nears, coarse, fars], dim=-1)
+        sdf = self._sdf_along(ray_bundle, edges)
+        active = (fars > nears)[:, 0]
+        if cfg.skip_empty_rays:
+            # between samples the SDF (|grad| ~ 1) can dip at most half a step below the smaller end
+            half_step = (edges[:, 1:] - edges[:, :-1]).max(-1).values * 0.5
+            closest = sdf.min(-1).values - half_step
+            active &= closest * self.variance.inv_s() < cfg.skip_margin
+        return edges, sdf, active
+
+    @torch.no_grad()
+    def _sample_edges(self, ray_bundle: RayBundle, edges: torch.Tensor, sdf: torch.Tensor) -> torch.Tensor:
+        """Section edges ``[n_rays, n_samples + n_importance + 2]``: the coarse ones, then up-sampled."""
+        cfg = self.config
+        if cfg.n_importance <= 0 or cfg.up_sample_steps <= 0:
+            return edges
+        per_step = cfg.n_importance // cfg.up_sample_steps
+        for k in range(cfg.up_sample_steps):
+            weights = renderers.weights_from_alpha(section_alpha(sdf, 64.0 * 2 ** k))
+            new = sample_pdf(edges, weights, per_step, jitter=False)
+            edges, order = torch.sort(torch.cat([edges, new], dim=-1), dim=-1)
+            if k + 1 < cfg.up_sample_steps:
+                sdf = torch.cat([sdf, self._sdf_along(ray_bundle, new)], dim=-1).gather(-1, order)
+        return edges
+
+    def _sdf_along(self, ray_bundle: RayBundle, t: torch.Tensor) -> torch.Tensor:
+        points = ray_bundle.origins[:, None] + ray_bundle.directions[:, None] * t[..., None]
+        return self.field.geometry(points)[0][..., 0]
+
+    # -- rendering ------------------------------------------------------------------------------
+    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+        nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions,
+                                                 self.scene.scene_radius)
+        ray_bundle.nears, ray_bundle.fars = nears, fars
+        edges, sdf_coarse, active = self._coarse(ray_bundle)
+        if bool(active.all()):
+            return self._render(ray_bundle, self._sample_edges(ray_bundle, edges, sdf_coarse))
+        n_rays = len(ray_bundle)
+        index = active.nonzero().squeeze(-1)
+        if index.numel() == 0:
+            index = index.new_zeros(1)  # keep one ray so per-sample outputs (eikonal) stay well-formed
+        sub = ray_bundle[index]
+        inner = self._render(sub, self._sample_edges(sub, edges[index], sdf_coarse[index]))
+        return _scatter_rays(inner, index, n_rays, self.background)
+
+    def _render(self, ray_bundle: RayBundle, edges: torch.Tensor) -> Dict[str, torch.Tensor]:
+        """Render rays that may hit the surface, given their section edges."""
+        samples = RaySamples.from_edges(ray_bundle, edges)
+        with torch.enable_grad():
+            positions = samples.positions.detach().requires_grad_(True)
+            sdf, geo_features = self.field.geometry(positions)
+            gradients = torch.autograd.grad(sdf, positions, torch.ones_like(sdf),
+                                            create_graph=self.training, retain_graph=True)[0]
+        if not self.training:
+            sdf, geo_features, gradients = sdf.detach(), geo_features.detach(), gradients.detach()
+        directions = samples.directions[:, None, :].expand_as(positions)
+        true_cos = (directions * gradients).sum(-1)
+        alpha = neus_alpha(sdf[..., 0], true_cos, samples.deltas, self.variance.inv_s(), self.cos_anneal_ratio())
+        weights = renderers.weights_from_alpha(alpha)
+        normals = torch.nn.functional.normalize(gradients, dim=-1, eps=1e-6)
+        camera_indices = samples.camera_indices[:, None].expand(alpha.shape)
+        color = self.field.color(positions if self.training else positions.detach(), directions, normals,
+                                 geo_features, camera_indices)
+        outputs = {
+            "rgb": renderers.render_rgb(weights, color["rgb"], self.background),
+            "accumulation": weights.sum(-1, keepdim=True),
+            "depth": renderers.render_depth(weights, samples.t_mid),
+            "normal": (weights[..., None] * normals).sum(-2),
+            "weights": weights,
+            "gradients": gradients,
+            "inside": (positions.detach().norm(dim=-1) < self.scene.scene_radius),
+        }
+        outputs.update({k: v for k, v in color.items() if k != "rgb"})
+        return outputs
+
+    def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
+        cfg = self.config
+        loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"], cfg.rgb_loss)}
+        if cfg.eikonal_weight > 0:
+            loss["eikonal"] = cfg.eikonal_weight * losses.eikonal_loss(outputs["gradients"], outputs["inside"])
+        if cfg.mask_weight > 0 and "mask" in batch:
+            loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
+        extra = getattr(self.field, "extra_losses", None)
+        if extra is not None:
+            loss.update(extra(outputs))
+        return self.apply_extra_losses(loss, outputs, batch)
+
+    def get_metrics_dict(self, outputs, batch) -> Dict[str, float]:
+        mse = ((outputs["rgb"].detach() - batch["rgb"]) ** 2).mean()
+        return {"psnr": float(losses.psnr_from_mse(mse))}
+
+    # -- export ---------------------------------------------------------------------------------
+    @torch.no_grad()
+    def mesh_field(self, points: torch.Tensor) -> torch.Tensor:
+        return self.field.geometry(points)[0][..., 0]
+
+    def surface_color(self, points: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+        with torch.no_grad():
+            _, geo_features = self.field.geometry(points)
+            camera = torch.full(points.shape[:-1], -1, dtype=torch.long, device=points.device)
+            return self.field.color(points, -normals, normals, geo_features, camera)["rgb"]
+
+
+PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")
+
+
+def _scatter_rays(inner: Dict[str, torch.Tensor], index: torch.Tensor, n_rays: int,
+                  background: torch.Tensor) -> Dict[str, torch.Tensor]:
+    """Per-ray outputs for all ``n_rays`` from those of the rendered subset ``index``; skipped rays
+    render the background with zero opacity. Per-sample outputs keep only the rendered rays."""
+    out = dict(inner)
+    for key in PER_RAY_KEYS:
+        value = inner[key]
+        full = value.new_zeros((n_rays,) + value.shape[1:])
+        if key == "rgb":
+            full = full + background
+        out[key] = full.index_put((index,), value)
+    return out
+
+
+def _wants_views(field_config) -> bool:
+    """Whether a field config needs to know the number of training views (view-adaptive wrappers)."""
+    return bool(getattr(field_config, "needs_num_views", False))

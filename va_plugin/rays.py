@@ -1,0 +1,89 @@
+"""Rays and samples along rays."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional, Tuple
+
+import torch
+
+
+@dataclass
+class RayBundle:
+    """A batch of rays.
+
+    Attributes:
+        origins: ``[n_rays, 3]``.
+        directions: ``[n_rays, 3]`` unit vectors.
+        camera_indices: ``[n_rays]`` long, the training view each ray comes from (-1 for novel views).
+        nears, fars: ``[n_rays, 1]`` where the ray enters and leaves the scene bound (filled by the model).
+    """
+
+    origins: torch.Tensor
+    directions: torch.Tensor
+    camera_indices: torch.Tensor
+    nears: Optional[torch.Tensor] = None
+    fars: Optional[torch.Tensor] = None
+
+    def __len__(self) -> int:
+        return self.origins.shape[0]
+
+    def __getitem__(self, index) -> "RayBundle":
+        pick = lambda t: None if t is None else t[index]  # noqa: E731
+        return RayBundle(self.origins[index], self.directions[index], self.camera_indices[index],
+                         pick(self.nears), pick(self.fars))
+
+    def to(self, device: torch.device) -> "RayBundle":
+        move = lambda t: None if t is None else t.to(device)  # noqa: E731
+        return RayBundle(self.origins.to(device), self.directions.to(device), self.camera_indices.to(device),
+                         move(self.nears), move(self.fars))
+
+
+@dataclass
+class RaySamples:
+    """Samples along rays: section mid-points ``t_mid`` with lengths ``deltas``.
+
+    Attributes:
+        positions: ``[n_rays, n_samples, 3]`` at the section mid-points.
+        directions: ``[n_rays, 3]`` unit ray directions.
+        t_mid: ``[n_rays, n_samples]`` distances of the mid-points along the ray.
+        deltas: ``[n_rays, n_samples]`` section lengths.
+        camera_indices: ``[n_rays]`` long.
+    """
+
+    positions: torch.Tensor
+    directions: torch.Tensor
+    t_mid: torch.Tensor
+    deltas: torch.Tensor
+    camera_indices: torch.Tensor
+
+    @staticmethod
+    def from_edges(ray_bundle: RayBundle, t_edges: torch.Tensor) -> "RaySamples":
+        """Samples between consecutive section edges ``t_edges [n_rays, n_samples + 1]``."""
+        deltas = t_edges[:, 1:] - t_edges[:, :-1]
+        t_mid = t_edges[:, :-1] + 0.5 * deltas
+        positions = ray_bundle.origins[:, None, :] + ray_bundle.directions[:, None, :] * t_mid[..., None]
+        return RaySamples(positions, ray_bundle.directions, t_mid, deltas, ray_bundle.camera_indices)
+
+
+def near_far_from_sphere(origins: torch.Tensor, directions: torch.Tensor, radius: float,
+                         min_near: float = 0.0) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """Where rays enter and leave a sphere of ``radius`` at the origin.
+
+    Args:
+        origins, directions: ``[n_rays, 3]``; directions need not be unit length but must be non-zero.
+    Returns:
+        nears, fars ``[n_rays, 1]`` and ``hits [n_rays]`` (bool). Rays that miss get near = far, so
+        every sample interval on them has zero length and they render background.
+    """
+    a = (directions * directions).sum(-1).clamp_min(1e-12)
+    b = 2.0 * (origins * directions).sum(-1)
+    c = (origins * origins).sum(-1) - radius * radius
+    disc = b * b - 4.0 * a * c
+    hits = disc > 0
+    root = torch.sqrt(disc.clamp_min(0.0))
+    near = ((-b - root) / (2.0 * a)).clamp_min(min_near)
+    far = (-b + root) / (2.0 * a)
+    hits = hits & (far > near)
+    far = torch.where(hits, far, near)
+    return near[:, None], far[:, None], hits
