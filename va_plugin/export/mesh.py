@@ -62,8 +62,8 @@ def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, wi
         if len(parts) > 1:
             mesh = max(parts, key=lambda m: len(m.faces))
     if with_color and len(mesh.vertices):
-        points = torch.as_tensor(np.asarray(mesh.vertices), dtype=torch.float32, device=device)
-        normals = torch.as_tensor(np.asarray(mesh.vertex_normals), dtype=torch.float32, device=device)
+        points = torch.as_tensor(np.array(mesh.vertices), dtype=torch.float32, device=device)
+        normals = torch.as_tensor(np.array(mesh.vertex_normals), dtype=torch.float32, device=device)
         colors = []
         model.eval()
         try:

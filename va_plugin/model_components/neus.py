@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 from torch import nn
 
@@ -16,7 +18,8 @@ class SingleVariance(nn.Module):
         self.variance = nn.Parameter(torch.tensor(float(init)))
 
     def inv_s(self) -> torch.Tensor:
-        return torch.exp((10.0 * self.variance).clamp(-13.8, 13.8)).clamp(INV_S_MIN, INV_S_MAX)
+        log_bound = math.log(INV_S_MAX)
+        return torch.exp((10.0 * self.variance).clamp(-log_bound, log_bound)).clamp(INV_S_MIN, INV_S_MAX)
 
 
 def neus_alpha(sdf: torch.Tensor, true_cos: torch.Tensor, deltas: torch.Tensor, inv_s: torch.Tensor,

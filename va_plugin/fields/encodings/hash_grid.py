@@ -5,22 +5,28 @@ in the table are indexed directly (no collisions); finer levels hash their verti
 entries. Each level trilinearly interpolates the features at the 8 corners of the cell holding the
 point, and the levels are concatenated.
 
-All levels live in one ``[total_entries, F]`` table with per-level offsets, and the fast path works
-on all levels at once: one gather in the forward pass and one ``index_add_`` in the backward pass.
-Corner indices are laid out level-major (``[n_levels, n_points, 8]``) so that each level's part of
-the gather and of the scatter touches one level's slice of the table at a time; on CPU this keeps the
-working set in cache and is 2-3x faster than a point-major layout.
+All levels live in one ``[total_entries, F]`` table with per-level offsets, so one gather serves
+every level in the forward pass and one ``index_add_`` every level in the backward pass. The work is
+vectorised over levels and corners; the layout is level-major and corner-major
+(``[n_levels, 8, n_points]``) so that every broadcast runs along the long point axis and each level's
+part of a gather or scatter stays inside that level's slice of the table.
 
-Gradients: the table always gets gradients. The input ``x`` gets first- and second-order gradients
-through plain autograd (``create_graph=True`` works, as an eikonal loss needs); they are zero where
-``x`` lies outside ``[-bound, bound]`` (the point is clamped) and, as in every hash grid, the
-gradient is discontinuous across cell faces.
+On CPU the points are processed in chunks (:data:`CPU_CHUNK_POINTS`): the temporaries of a chunk stay
+in cache and are recycled by the allocator instead of being fresh, page-faulting allocations of
+hundreds of MB. On CUDA the whole batch is one chunk.
+
+Gradients: a custom autograd function gives the table and the input points first-order gradients
+from an analytic backward pass that recomputes the corners instead of saving them. A second-order
+gradient (an eikonal loss back-propagated through ``autograd.grad(..., create_graph=True)``) falls
+back to plain autograd over the whole batch: correct, but slower and memory-hungry. Input gradients
+are zero outside ``[-bound, bound]`` (points are clamped) and, as in every grid encoding,
+discontinuous across cell faces.
 """
 
 from __future__ import annotations
 
 import math
-from typing import List, Optional, Sequence
+from typing import List, NamedTuple, Optional, Sequence, Tuple
 
 import torch
 import torch.nn.functional as F
@@ -28,6 +34,9 @@ from torch import nn
 
 # Per-axis multipliers of the spatial hash (Teschner et al. 2003, as used by InstantNGP).
 HASH_PRIMES = (1, 2654435761, 805459861)
+
+# Points per chunk on CPU; measured with benchmarks/bench_hash_grid.py (flat from 2k to 8k).
+CPU_CHUNK_POINTS = 4096
 
 
 def grid_resolutions(n_levels: int, base_resolution: int, max_resolution: int) -> List[int]:
@@ -62,12 +71,28 @@ def index_multipliers(resolutions: Sequence[int], hashmap_size: int) -> List[Lis
     ]
 
 
+class GridLevels(NamedTuple):
+    """Per-level constants of a grid, as tensors on the table's device (levels ordered coarse to fine)."""
+
+    resolutions: torch.Tensor  # [n_levels] int64 cells per axis
+    multipliers: torch.Tensor  # [n_levels, 3] int64, see index_multipliers
+    offsets: torch.Tensor  # [n_levels] int64 first table row of each level
+    n_dense: int  # the first n_dense levels are dense, the rest hashed
+    hashmap_size: int  # T, a power of two
+
+    def first(self, n: int) -> "GridLevels":
+        """The ``n`` coarsest levels."""
+        return GridLevels(
+            self.resolutions[:n], self.multipliers[:n], self.offsets[:n], min(self.n_dense, n), self.hashmap_size
+        )
+
+
 def normalise_points(x: torch.Tensor, bound: float) -> torch.Tensor:
     """Map ``[-bound, bound]`` to ``[0, 1]``, clamping points outside to the domain edge. ``[..., 3]``."""
     return ((x + bound) / (2.0 * bound)).clamp(0.0, 1.0)
 
 
-def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
     """The cell holding each point on each level and the point's position inside it.
 
     Args:
@@ -75,76 +100,159 @@ def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> tuple[torch.Te
         resolutions: ``[n_levels]`` int64 cells per axis.
 
     Returns:
-        ``cell`` ``[n_levels, n_points, 3]`` int64 lower corner, in ``[0, N_l - 1]`` (a point at 1
-        falls in the last cell with fraction 1), and ``frac`` ``[n_levels, n_points, 3]`` in ``[0, 1]``,
+        ``cell`` ``[n_levels, 3, n_points]`` int64 lower corner in ``[0, N_l - 1]`` (a point at 1 falls
+        in the last cell with fraction 1), and ``frac`` ``[n_levels, 3, n_points]`` in ``[0, 1]``,
         differentiable w.r.t. ``x01``.
     """
-    scale = resolutions.to(x01.dtype)[:, None, None]
-    pos = x01[None] * scale
+    pos = x01.t()[None] * resolutions.to(x01.dtype)[:, None, None]
     upper = (resolutions - 1)[:, None, None]
     # Clamping the integers (not the floats) also keeps NaN inputs from producing stray indices.
     cell = torch.minimum(pos.detach().floor().long().clamp_min(0), upper)
     return cell, pos - cell.to(pos.dtype)
 
 
-def corner_indices(
-    cell: torch.Tensor, multipliers: torch.Tensor, n_dense: int, hashmap_size: int
-) -> torch.Tensor:
-    """Per-level table index of the 8 corners of each cell, in ``[0, level size)``.
+def corner_indices(cell: torch.Tensor, levels: GridLevels) -> torch.Tensor:
+    """Index of the 8 corners of each cell within its level's table, in ``[0, level size)``.
 
     Corner ``c = 4 i + 2 j + k`` is the vertex ``cell + (i, j, k)``.
 
     Args:
-        cell: ``[n_levels, n_points, 3]`` int64 lower cell corners.
-        multipliers: ``[n_levels, 3]`` int64, see :func:`index_multipliers`.
-        n_dense: how many leading levels are dense (levels are ordered coarse to fine).
-        hashmap_size: ``T``, a power of two.
+        cell: ``[n_levels, 3, n_points]`` int64 lower cell corners.
 
     Returns:
-        ``[n_levels, n_points, 8]`` int64.
+        ``[n_levels, 8, n_points]`` int64.
     """
-    axis_offsets = torch.arange(2, device=cell.device)
-    # [n_levels, n_points, 3, 2]: each axis' two vertex coordinates times that axis' multiplier.
-    terms = (cell[..., None] + axis_offsets) * multipliers[:, None, :, None]
-    tx = terms[..., 0, :, None, None]
-    ty = terms[..., 1, None, :, None]
-    tz = terms[..., 2, None, None, :]
-    dense = tx[:n_dense] + ty[:n_dense] + tz[:n_dense]
+    axis_steps = torch.arange(2, device=cell.device)[:, None]
+    # [n_levels, 3, 2, n_points]: each axis' two vertex coordinates times that axis' multiplier.
+    terms = (cell[:, :, None, :] + axis_steps) * levels.multipliers[:, :, None, None]
+    tx = terms[:, 0, :, None, None]
+    ty = terms[:, 1, None, :, None]
+    tz = terms[:, 2, None, None, :]
+    n = levels.n_dense
+    dense = tx[:n] + ty[:n] + tz[:n]
     # int64 products keep the low 32 bits of InstantNGP's uint32 hash, and T <= 2**32 is a power
-    # of two, so masking equals both "mod T" and the reference implementation's wrap-around.
-    hashed = (tx[n_dense:] ^ ty[n_dense:] ^ tz[n_dense:]) & (hashmap_size - 1)
-    return torch.cat([dense, hashed]).flatten(-3)
+    # of two, so masking equals both "mod T" and InstantNGP's wrap-around.
+    hashed = (tx[n:] ^ ty[n:] ^ tz[n:]).bitwise_and_(levels.hashmap_size - 1)
+    return torch.cat([dense, hashed]).flatten(1, 3)
+
+
+def axis_weights(frac: torch.Tensor) -> torch.Tensor:
+    """Linear weights of the lower and upper vertex along each axis. ``[n_levels, 3, 2, n_points]``."""
+    return torch.stack([1.0 - frac, frac], dim=2)
 
 
 def corner_weights(frac: torch.Tensor) -> torch.Tensor:
-    """Trilinear weights of the 8 corners, ordered as in :func:`corner_indices`.
+    """Trilinear weights ``[n_levels, 8, n_points]`` of the corners of :func:`corner_indices`, from
+    ``frac`` ``[n_levels, 3, n_points]``; they sum to 1 over the corners."""
+    per_axis = axis_weights(frac)
+    wx = per_axis[:, 0, :, None, None]
+    wy = per_axis[:, 1, None, :, None]
+    wz = per_axis[:, 2, None, None, :]
+    return (wx * wy * wz).flatten(1, 3)
+
+
+def _corners(x01: torch.Tensor, levels: GridLevels) -> Tuple[torch.Tensor, torch.Tensor]:
+    """Table rows ``[n_levels, 8, n_points]`` of every corner and the in-cell position ``frac``."""
+    cell, frac = cell_corners(x01, levels.resolutions)
+    indices = corner_indices(cell, levels).add_(levels.offsets[:, None, None])
+    return indices, frac
+
+
+def _gather(table: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
+    """Corner features ``[n_levels, 8, n_points, F]`` for table rows ``[n_levels, 8, n_points]``."""
+    return table.index_select(0, indices.reshape(-1)).view(*indices.shape, table.shape[1])
+
+
+def encode_points(x01: torch.Tensor, table: torch.Tensor, levels: GridLevels) -> torch.Tensor:
+    """Differentiable encoding of points ``[n_points, 3]`` in ``[0, 1]``. ``[n_points, n_levels * F]``."""
+    indices, frac = _corners(x01, levels)
+    per_level = torch.einsum("lkpf,lkp->plf", _gather(table, indices), corner_weights(frac))
+    return per_level.reshape(x01.shape[0], -1)
+
+
+def _frac_gradient(corner_grad: torch.Tensor, frac: torch.Tensor) -> torch.Tensor:
+    """Gradient w.r.t. ``frac`` ``[n_levels, 3, n_points]`` given the gradient w.r.t. the corner
+    weights ``[n_levels, 8, n_points]``: the derivative of a trilinear weight along one axis is the
+    product of the other two axes' weights, with sign + for the upper and - for the lower vertex."""
+    g = corner_grad.unflatten(1, (2, 2, 2))
+    w = axis_weights(frac)
+    wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
+    dx = ((g[:, 1] - g[:, 0]) * wy[:, :, None] * wz[:, None, :]).sum((1, 2))
+    dy = ((g[:, :, 1] - g[:, :, 0]) * wx[:, :, None] * wz[:, None, :]).sum((1, 2))
+    dz = ((g[:, :, :, 1] - g[:, :, :, 0]) * wx[:, :, None] * wy[:, None, :]).sum((1, 2))
+    return torch.stack([dx, dy, dz], dim=1)
+
+
+def _chunk_size(x01: torch.Tensor) -> int:
+    """Points per chunk: cache-sized on CPU, the whole batch elsewhere."""
+    return CPU_CHUNK_POINTS if x01.device.type == "cpu" else max(x01.shape[0], 1)
+
+
+class _HashGridFunction(torch.autograd.Function):
+    """``encode_points`` with a chunked forward and an analytic, recomputing first-order backward."""
+
+    @staticmethod
+    def forward(ctx, x01: torch.Tensor, table: torch.Tensor, levels: GridLevels) -> torch.Tensor:
+        ctx.levels = levels
+        ctx.save_for_backward(x01, table)
+        n_points, chunk = x01.shape[0], _chunk_size(x01)
+        out = x01.new_empty(n_points, levels.offsets.shape[0] * table.shape[1])
+        for start in range(0, n_points, chunk):
+            out[start : start + chunk] = encode_points(x01[start : start + chunk], table, levels)
+        return out
+
+    @staticmethod
+    def backward(ctx, grad_out: torch.Tensor):
+        x01, table = ctx.saved_tensors
+        need_x, need_table = ctx.needs_input_grad[:2]
+        if torch.is_grad_enabled():
+            return _HashGridFunction._differentiable_backward(ctx, x01, table, grad_out)
+        grad_table = torch.zeros_like(table) if need_table else None
+        grad_x = torch.empty_like(x01) if need_x else None
+        chunk = _chunk_size(x01)
+        for start in range(0, x01.shape[0], chunk):
+            part = slice(start, start + chunk)
+            x_part = _backward_chunk(x01[part], table, ctx.levels, grad_out[part], grad_table, need_x)
+            if need_x:
+                grad_x[part] = x_part
+        return grad_x, grad_table, None
+
+    @staticmethod
+    def _differentiable_backward(ctx, x01: torch.Tensor, table: torch.Tensor, grad_out: torch.Tensor):
+        """Backward under ``create_graph=True``: plain autograd of :func:`encode_points`, so the
+        returned gradients can themselves be differentiated (e.g. an eikonal loss)."""
+        needed = [t for t, need in zip((x01, table), ctx.needs_input_grad) if need]
+        grads = iter(torch.autograd.grad(encode_points(x01, table, ctx.levels), needed, grad_out, create_graph=True))
+        return tuple(next(grads) if need else None for need in ctx.needs_input_grad[:2]) + (None,)
+
+
+def _backward_chunk(
+    x01: torch.Tensor,
+    table: torch.Tensor,
+    levels: GridLevels,
+    grad_out: torch.Tensor,
+    grad_table: Optional[torch.Tensor],
+    need_x: bool,
+) -> Optional[torch.Tensor]:
+    """Accumulate one chunk's table gradient into ``grad_table`` ``[total_entries, F]`` (if given)
+    and return its point gradient ``[n_points, 3]`` (if ``need_x``).
 
     Args:
-        frac: ``[n_levels, n_points, 3]`` position inside the cell.
-
-    Returns:
-        ``[n_levels, n_points, 8]``, summing to 1 over the corners.
+        x01: ``[n_points, 3]``.
+        grad_out: ``[n_points, n_levels * F]``.
     """
-    per_axis = torch.stack([1.0 - frac, frac], dim=-1)
-    wx = per_axis[..., 0, :, None, None]
-    wy = per_axis[..., 1, None, :, None]
-    wz = per_axis[..., 2, None, None, :]
-    return (wx * wy * wz).flatten(-3)
-
-
-def interpolate(table: torch.Tensor, indices: torch.Tensor, weights: torch.Tensor) -> torch.Tensor:
-    """Weighted sum of the corner features of every level.
-
-    Args:
-        table: ``[total_entries, F]``.
-        indices: ``[n_levels, n_points, 8]`` int64 global rows of ``table``.
-        weights: ``[n_levels, n_points, 8]``.
-
-    Returns:
-        ``[n_levels, n_points, F]``.
-    """
-    features = table.index_select(0, indices.reshape(-1)).view(*indices.shape, table.shape[1])
-    return torch.einsum("lncf,lnc->lnf", features, weights)
+    indices, frac = _corners(x01, levels)
+    n_levels, n_features = indices.shape[0], table.shape[1]
+    grad_levels = grad_out.reshape(-1, n_levels, n_features)
+    if grad_table is not None:
+        rows = torch.einsum("plf,lkp->lkpf", grad_levels, corner_weights(frac))
+        grad_table.index_add_(0, indices.reshape(-1), rows.reshape(-1, n_features))
+    if not need_x:
+        return None
+    corner_grad = torch.einsum("lkpf,plf->lkp", _gather(table, indices), grad_levels)
+    # frac = x01 * N_l - cell, and the cell is piecewise constant.
+    scale = levels.resolutions.to(x01.dtype)[:, None, None]
+    return (_frac_gradient(corner_grad, frac) * scale).sum(0).t()
 
 
 class HashGridEncoding(nn.Module):
@@ -162,10 +270,12 @@ class HashGridEncoding(nn.Module):
     Attributes:
         output_dim: ``L * F``.
         resolutions: cells per axis of each level.
+        offsets: first table row of each level.
+        hashmap_size: ``T``.
         n_dense_levels: how many coarse levels are indexed directly (collision-free).
-        n_active_levels: levels that contribute; the finer ones output zeros (coarse-to-fine schedules).
-        table: ``[total_entries, F]`` parameter holding every level, level ``l`` starting at row
-            ``offsets[l]``.
+        n_active_levels: levels that contribute; the finer ones output zeros (coarse-to-fine
+            schedules). Set with :meth:`set_active_levels`.
+        table: ``[total_entries, F]`` parameter holding every level.
     """
 
     def __init__(
@@ -205,6 +315,10 @@ class HashGridEncoding(nn.Module):
         multipliers = torch.tensor(index_multipliers(self.resolutions, self.hashmap_size))
         self.register_buffer("_multipliers", multipliers, persistent=False)
 
+    def levels(self) -> GridLevels:
+        """The per-level constants, on the module's device."""
+        return GridLevels(self._resolutions, self._multipliers, self._offsets, self.n_dense_levels, self.hashmap_size)
+
     def set_active_levels(self, n_active: int) -> None:
         """Let only the ``n_active`` coarsest levels contribute; the rest output zeros."""
         if not 0 <= n_active <= self.n_levels:
@@ -218,17 +332,16 @@ class HashGridEncoding(nn.Module):
         return mask.flatten()
 
     def corner_indices(self, x: torch.Tensor) -> torch.Tensor:
-        """Per-level table index (before adding the level offset) of each point's 8 corners.
+        """Index of each point's 8 corners within each level's table (before the level offset).
 
         Args:
             x: ``[n_points, 3]``.
 
         Returns:
-            ``[n_points, n_levels, 8]`` int64, each level's in ``[0, its table size)``.
+            ``[n_points, n_levels, 8]`` int64, level ``l``'s in ``[0, its table size)``.
         """
         cell, _ = cell_corners(normalise_points(x, self.bound), self._resolutions)
-        indices = corner_indices(cell, self._multipliers, self.n_dense_levels, self.hashmap_size)
-        return indices.transpose(0, 1)
+        return corner_indices(cell, self.levels()).permute(2, 0, 1)
 
     def forward(self, x: torch.Tensor, n_active_levels: Optional[int] = None) -> torch.Tensor:
         """Encode points.
@@ -238,18 +351,13 @@ class HashGridEncoding(nn.Module):
             n_active_levels: overrides :attr:`n_active_levels` for this call.
 
         Returns:
-            ``[..., output_dim]`` in the table's dtype (float32 by default); the channels of inactive
-            levels are zero.
+            ``[..., output_dim]`` in the table's dtype (float32 by default); the channels of
+            inactive levels are zero.
         """
         n_active = self.n_active_levels if n_active_levels is None else n_active_levels
         points = normalise_points(x.reshape(-1, 3).to(self.table.dtype), self.bound)
-        cell, frac = cell_corners(points, self._resolutions[:n_active])
-        local = corner_indices(
-            cell, self._multipliers[:n_active], min(self.n_dense_levels, n_active), self.hashmap_size
-        )
-        indices = local + self._offsets[:n_active, None, None]
-        features = interpolate(self.table, indices, corner_weights(frac))
-        # [n_active, n_points, F] -> [n_points, n_active * F], then zeros for the inactive levels.
-        encoded = features.permute(1, 0, 2).reshape(points.shape[0], -1)
+        if n_active == 0:
+            return points.new_zeros(*x.shape[:-1], self.output_dim)
+        encoded = _HashGridFunction.apply(points, self.table, self.levels().first(n_active))
         encoded = F.pad(encoded, (0, self.output_dim - encoded.shape[1]))
         return encoded.view(*x.shape[:-1], self.output_dim)

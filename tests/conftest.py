@@ -1,0 +1,52 @@
+"""Shared fixtures: a tiny rendered scene and tiny configs, so every test runs in seconds on 2 cores."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import pytest
+import torch
+
+torch.set_num_threads(min(2, torch.get_num_threads()))
+
+REPO = Path(__file__).resolve().parents[1]
+SHARED_DATA = REPO.parent / "shared" / "data"
+
+
+@pytest.fixture(scope="session")
+def tiny_scene(tmp_path_factory) -> Path:
+    """The default procedural object on the SyncDreamer rig at 24 x 24 px (4 inputs + held-out views)."""
+    from va_plugin.data.scenes.builder import build_procedural_scene
+
+    return build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=4, resolution=24)
+
+
+def tiny_config(method: str, scene: Path, out: Path, steps: int = 2, **overrides):
+    """A method's config shrunk to a handful of rays and samples."""
+    from va_plugin.config import apply_override
+    from va_plugin.registry import get_method
+
+    config = get_method(method).make_config()
+    config.pipeline.datamanager.dataparser.data = Path(scene)
+    config.output_dir = Path(out)
+    config.max_steps = steps
+    config.progress = False
+    config.checkpoint_every = max(1, steps)
+    config.log_every = 1
+    config.device = "cpu"
+    shrink = {"pipeline.datamanager.rays_per_batch": 32}
+    model = config.pipeline.model
+    for name, value in (("n_samples", 8), ("n_importance", 8), ("eval_chunk", 256)):
+        if hasattr(model, name):
+            shrink[f"pipeline.model.{name}"] = value
+    shrink.update(overrides)
+    for key, value in shrink.items():
+        apply_override(config, f"{key}={value}")
+    return config
+
+
+@pytest.fixture
+def no_env_methods(monkeypatch):
+    monkeypatch.delenv("VA_PLUGIN_METHODS", raising=False)
+    return os.environ

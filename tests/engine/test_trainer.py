@@ -1,0 +1,102 @@
+import json
+
+import pytest
+import torch
+
+from conftest import tiny_config
+from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback
+from va_plugin.engine.trainer import atomic_save, list_checkpoints, load_checkpoint
+from va_plugin.errors import CheckpointError, ConfigError
+from va_plugin.registry import discover_methods
+
+METHODS = sorted(discover_methods())
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_two_iteration_smoke(method, tiny_scene, tmp_path):
+    trainer = tiny_config(method, tiny_scene, tmp_path / method, steps=2).setup()
+    record = trainer.train()
+    assert trainer.step == 2 and record["step"] == 2
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+    lines = (tmp_path / method / "metrics.jsonl").read_text().splitlines()
+    assert len(lines) == 2 and "loss" in json.loads(lines[-1])
+    assert len(list_checkpoints(tmp_path / method)) == 1
+
+
+def _params(trainer):
+    return {k: v.detach().clone() for k, v in trainer.model.state_dict().items()}
+
+
+def test_resume_continues_bitwise(tiny_scene, tmp_path):
+    full = tiny_config("neus", tiny_scene, tmp_path / "full", steps=6, checkpoint_every=3).setup()
+    full.train()
+
+    def interrupt(step, trainer):
+        if step == 3:
+            raise KeyboardInterrupt
+
+    first = tiny_config("neus", tiny_scene, tmp_path / "cut", steps=6, checkpoint_every=3).setup()
+    first.callbacks.append(TrainingCallback(interrupt, BEFORE_STEP))
+    with pytest.raises(KeyboardInterrupt):
+        first.train()
+    assert first.step == 3
+    second = tiny_config("neus", tiny_scene, tmp_path / "cut", steps=6, checkpoint_every=3).setup()
+    assert second.resume() and second.step == 3
+    second.train()
+    a, b = _params(full), _params(second)
+    assert all(torch.equal(a[k], b[k]) for k in a), "resumed run differs from the uninterrupted one"
+
+
+def test_half_written_checkpoint_falls_back_to_previous(tiny_scene, tmp_path):
+    trainer = tiny_config("neus", tiny_scene, tmp_path / "run", steps=2, checkpoint_every=1).setup()
+    trainer.train()
+    newest = list_checkpoints(tmp_path / "run")[-1]
+    newest.write_bytes(newest.read_bytes()[:100])  # as if killed mid-write without the atomic rename
+    with pytest.warns(UserWarning, match="unreadable"):
+        state = load_checkpoint(tmp_path / "run")
+    assert state["step"] == 1
+
+
+def test_atomic_save_leaves_no_partial_file(tmp_path):
+    class Boom:
+        def __reduce__(self):
+            raise RuntimeError("disk full")
+
+    target = tmp_path / "a.ckpt"
+    atomic_save({"ok": 1}, target)
+    with pytest.raises(RuntimeError):
+        atomic_save({"bad": Boom()}, target)
+    assert torch.load(target) == {"ok": 1}
+
+
+def test_checkpoint_of_another_method_is_refused(tiny_scene, tmp_path):
+    trainer = tiny_config("neus", tiny_scene, tmp_path / "run", steps=1).setup()
+    trainer.train()
+    other = tiny_config("neus", tiny_scene, tmp_path / "run", steps=2).setup()
+    other.config.method_name = "something-else"
+    with pytest.raises(CheckpointError, match="of method 'neus'"):
+        other.resume()
+
+
+def test_missing_checkpoints_and_bad_config(tmp_path, tiny_scene):
+    with pytest.raises(CheckpointError, match="holds no checkpoint"):
+        (tmp_path / "empty").mkdir() or load_checkpoint(tmp_path / "empty")
+    with pytest.raises(ConfigError, match="max_steps"):
+        tiny_config("neus", tiny_scene, tmp_path / "x", steps=0).setup()
+
+
+def test_nan_batch_is_skipped_with_one_warning(tiny_scene, tmp_path):
+    trainer = tiny_config("neus", tiny_scene, tmp_path / "nan", steps=3).setup()
+    real = trainer.pipeline.datamanager.next_train
+
+    def poisoned(step):
+        rays, batch = real(step)
+        if step == 1:
+            batch["rgb"] = torch.full_like(batch["rgb"], float("nan"))
+        return rays, batch
+
+    trainer.pipeline.datamanager.next_train = poisoned
+    with pytest.warns(UserWarning, match="non-finite"):
+        trainer.train()
+    assert trainer.bad_steps == 1
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
