@@ -32,6 +32,7 @@ setup(
             "va-train = va_plugin.cli.train:main",
             "va-export = va_plugin.cli.export:main",
             "va-eval = va_plugin.cli.eval:main",
+            "va-demo = va_plugin.cli.demo:main",
         ],
         "va_plugin.methods": METHODS,
     },

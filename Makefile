@@ -1,0 +1,13 @@
+# The two commands of the README. Both run the setup first (it is quick once done).
+.PHONY: setup demo test
+
+.venv/.va-setup-done: setup.py scripts/setup.sh
+	bash scripts/setup.sh
+
+setup: .venv/.va-setup-done
+
+demo: setup
+	.venv/bin/va-demo
+
+test: setup
+	.venv/bin/python -m pytest -q

@@ -1,0 +1,109 @@
+"""Textured mesh files (OBJ, PLY, GLB...) as benchmark objects.
+
+A mesh is turned z-up (``up_axis``: OBJ files are usually y-up, as Spot the cow is), optionally turned
+about z by ``yaw_deg``, then normalised like SyncDreamer's and GSO's objects: the largest side of its
+bounding box scaled to 1 and the box centred at the origin, so it fits [-0.5, 0.5]^3.
+Its albedo is the texture image sampled at the hit point's interpolated UV; without UVs or an image it is
+the mesh's vertex colours, or a plain light grey.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Optional
+
+import numpy as np
+import trimesh
+
+from va_plugin.data.images import read_image
+from va_plugin.data.scenes.raycast import Albedo, UVTexture
+from va_plugin.errors import ConfigError, DataError
+
+UP_AXES = ("y", "z")
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")
+PLAIN_GREY = np.array([0.7, 0.7, 0.7], dtype=np.float32)
+
+
+@dataclass
+class TexturedMesh:
+    """A render mesh (vertices split along UV seams, as stored), its albedo, and the welded ground truth."""
+
+    render_mesh: trimesh.Trimesh
+    albedo: Albedo
+    ground_truth: trimesh.Trimesh
+    texture_path: Optional[Path]
+
+
+def up_to_z(up_axis: str) -> np.ndarray:
+    """``[3, 3]`` rotation taking the file's up axis to +z (y-up: +90 deg about x, (x, y, z) -> (x, -z, y))."""
+    if up_axis not in UP_AXES:
+        raise ConfigError(f"unknown up axis {up_axis!r}; use one of {', '.join(UP_AXES)}")
+    if up_axis == "z":
+        return np.eye(3)
+    return np.array([[1.0, 0.0, 0.0], [0.0, 0.0, -1.0], [0.0, 1.0, 0.0]])
+
+
+def normalise_vertices(vertices: np.ndarray) -> np.ndarray:
+    """Scale ``[v, 3]`` so the bounding box's largest side is 1, then centre the box at the origin."""
+    low, high = vertices.min(0), vertices.max(0)
+    scale = 1.0 / float((high - low).max())
+    return (vertices - 0.5 * (low + high)) * scale
+
+
+def find_texture(path: Path, mesh: trimesh.Trimesh) -> Optional[Path]:
+    """The texture image of a mesh file: the material's own file, ``<stem>.png`` or ``<stem>_texture.png``,
+    or else the only image in the file's folder."""
+    material = getattr(getattr(mesh, "visual", None), "material", None)
+    own = getattr(material, "image", None)
+    own_name = getattr(own, "filename", None) if own is not None else None
+    if own_name and Path(own_name).is_file():
+        return Path(own_name)
+    for name in (path.stem, f"{path.stem}_texture"):
+        for suffix in IMAGE_SUFFIXES:
+            if (path.parent / f"{name}{suffix}").is_file():
+                return path.parent / f"{name}{suffix}"
+    images = sorted(p for p in path.parent.iterdir() if p.suffix.lower() in IMAGE_SUFFIXES)
+    return images[0] if len(images) == 1 else None
+
+
+def _load_mesh(path: Path) -> trimesh.Trimesh:
+    if not path.is_file():
+        raise DataError(f"mesh file not found: {path}")
+    try:
+        mesh = trimesh.load(str(path), force="mesh", process=False)  # process=False keeps UVs per vertex
+    except Exception as exc:  # trimesh raises many types for unreadable files
+        raise DataError(f"cannot read mesh file {path}: {exc}") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise DataError(f"{path} holds no triangles")
+    return mesh
+
+
+def _albedo(mesh: trimesh.Trimesh, texture: Optional[Path]) -> Albedo:
+    uv = getattr(mesh.visual, "uv", None)
+    if texture is not None and uv is not None and len(uv) == len(mesh.vertices):
+        return UVTexture(uv, read_image(texture)[:, :, :3])
+    if getattr(mesh.visual, "kind", None) == "vertex":
+        colours = np.asarray(mesh.visual.vertex_colors[:, :3], dtype=np.float32) / 255.0
+        return lambda hits: np.einsum("nk,nkc->nc", hits.barycentric, colours[hits.corners])
+    return lambda hits: np.broadcast_to(PLAIN_GREY, (len(hits.points), 3)).copy()
+
+
+def load_textured_mesh(path: Path, texture: Optional[Path] = None, up_axis: str = "y",
+                       yaw_deg: float = 0.0) -> TexturedMesh:
+    """Read a mesh file, bring it into the benchmark frame, and attach its texture."""
+    path = Path(path)
+    rotation = up_to_z(up_axis)
+    mesh = _load_mesh(path)
+    if texture is None:
+        texture = find_texture(path, mesh)
+    elif not Path(texture).is_file():
+        raise DataError(f"texture image not found: {texture}")
+    yaw = np.radians(yaw_deg)
+    turn = np.array([[np.cos(yaw), -np.sin(yaw), 0.0], [np.sin(yaw), np.cos(yaw), 0.0], [0.0, 0.0, 1.0]])
+    vertices = normalise_vertices(np.asarray(mesh.vertices, dtype=np.float64) @ (turn @ rotation).T)
+    render_mesh = trimesh.Trimesh(vertices.astype(np.float32), mesh.faces, process=False)
+    # Welding the copies split along UV seams closes the surface again (Spot is watertight once welded).
+    ground_truth = trimesh.Trimesh(vertices, mesh.faces, process=True)
+    return TexturedMesh(render_mesh, _albedo(mesh, None if texture is None else Path(texture)), ground_truth,
+                        None if texture is None else Path(texture))

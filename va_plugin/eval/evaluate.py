@@ -1,0 +1,98 @@
+"""Evaluating a trained run on its scene: the paper's image metrics on held-out views and the
+geometry metrics of its mesh against the ground truth."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+import numpy as np
+import torch
+import trimesh
+from tqdm import tqdm
+
+from va_plugin.errors import DataError
+from va_plugin.eval.geometry import geometry_metrics
+from va_plugin.eval.image import psnr, ssim
+from va_plugin.eval.lpips import LPIPSWeightsMissing, lpips
+from va_plugin.export.mesh import extract_mesh
+from va_plugin.export.render import render_view
+
+FSCORE_THRESHOLD = 0.02
+"""F-score distance threshold in world units (objects fit a unit box): 2% of the object's size."""
+
+
+def ground_truth_mesh_path(pipeline, scene_dir: Optional[Path] = None) -> Optional[Path]:
+    """The scene's ground-truth mesh (``scene.json``'s "mesh" entry), or None when it has none."""
+    train = pipeline.datamanager.train
+    if scene_dir is None:
+        json_path = train.metadata.get("json")
+        if json_path is None:
+            return None
+        scene_dir = Path(json_path).parent
+    scene_file = Path(scene_dir) / "scene.json"
+    if not scene_file.is_file():
+        return None
+    entry = json.loads(scene_file.read_text()).get("mesh")
+    return None if entry is None else Path(scene_dir) / entry
+
+
+def load_mesh(path: Path) -> trimesh.Trimesh:
+    try:
+        mesh = trimesh.load(path, force="mesh", process=False)
+    except Exception as exc:  # trimesh raises many kinds of errors for bad files
+        raise DataError(f"cannot read mesh {path} ({type(exc).__name__})") from None
+    if not isinstance(mesh, trimesh.Trimesh) or len(mesh.faces) == 0:
+        raise DataError(f"mesh {path} has no faces")
+    return mesh
+
+
+def image_metrics(pipeline, image_scale: float = 1.0, max_views: Optional[int] = None, use_lpips: bool = True,
+                  progress: bool = True) -> Dict[str, Any]:
+    """Mean PSNR, SSIM and LPIPS over the held-out views, rendered on the canonical path."""
+    import cv2
+
+    test = pipeline.datamanager.test
+    if test is None:
+        return {}
+    cameras = test.cameras.scaled(image_scale) if image_scale != 1.0 else test.cameras
+    count = len(test) if max_views is None else min(max_views, len(test))
+    scores: Dict[str, list] = {"psnr": [], "ssim": [], "lpips": []}
+    for i in tqdm(range(count), desc="evaluating views", disable=not progress):
+        render = render_view(pipeline.model, cameras, i)
+        target = test.images[i].numpy()
+        if image_scale != 1.0:
+            target = cv2.resize(target, (cameras.width, cameras.height), interpolation=cv2.INTER_AREA)
+        scores["psnr"].append(psnr(render, target))
+        scores["ssim"].append(ssim(render, target))
+        if use_lpips:
+            scores["lpips"].append(lpips(render, target))
+    out: Dict[str, Any] = {k: float(np.mean(v)) for k, v in scores.items() if v}
+    out["image_params"] = {"views": count, "width": cameras.width, "height": cameras.height,
+                           "background": list(test.background)}
+    return out
+
+
+def evaluate_run(pipeline, state: Dict[str, Any], scene_dir: Optional[Path] = None, mesh_resolution: int = 128,
+                 image_scale: float = 1.0, max_views: Optional[int] = None, n_samples: int = 100_000,
+                 progress: bool = True) -> Dict[str, Any]:
+    """All metrics of a trained run: psnr, ssim, lpips, cd, iou, fscore, plus timing and parameters."""
+    started = time.perf_counter()
+    result: Dict[str, Any] = {"method": state.get("method_name"), "steps": int(state["step"]),
+                              "train_seconds": float(state.get("train_seconds", 0.0))}
+    try:
+        result.update(image_metrics(pipeline, image_scale, max_views, use_lpips=True, progress=progress))
+    except LPIPSWeightsMissing as exc:
+        result.update(image_metrics(pipeline, image_scale, max_views, use_lpips=False, progress=progress))
+        result["lpips_missing"] = str(exc)
+    gt_path = ground_truth_mesh_path(pipeline, scene_dir)
+    if gt_path is not None:
+        pred = extract_mesh(pipeline.model, resolution=mesh_resolution, with_color=False)
+        geo = geometry_metrics(pred, load_mesh(gt_path), n_samples=n_samples, threshold=FSCORE_THRESHOLD)
+        result.update({"cd": geo["chamfer_distance"], "iou": geo["volume_iou"], "fscore": geo["f_score"],
+                       "geometry_params": {**geo["params"], "mesh_resolution": mesh_resolution,
+                                           "ground_truth": str(gt_path)}})
+    result["eval_seconds"] = round(time.perf_counter() - started, 2)
+    return result
