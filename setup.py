@@ -4,6 +4,7 @@ from setuptools import find_packages, setup
 
 METHODS = [
     "neus = method_configs.neus:neus",
+    "ngp = method_configs.ngp:ngp",
 ]
 
 setup(

@@ -9,6 +9,7 @@ import torch
 from torch import nn
 
 from va_plugin.config import InstantiateConfig
+from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.rays import RayBundle
 
 
@@ -69,7 +70,9 @@ class Model(nn.Module):
 
     def get_metrics_dict(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]
                          ) -> Dict[str, float]:
-        return {}
+        """Training-batch PSNR of the rendered colour."""
+        mse = ((outputs["rgb"].detach() - batch["rgb"]) ** 2).mean()
+        return {"psnr": float(psnr_from_mse(mse))}
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
         raise NotImplementedError
@@ -110,3 +113,8 @@ class Model(nn.Module):
 
 def optional_tensor(batch: Dict[str, torch.Tensor], key: str) -> Optional[torch.Tensor]:
     return batch.get(key)
+
+
+def wants_num_views(field_config) -> bool:
+    """Whether a field config needs to know the number of training views (view-adaptive wrappers)."""
+    return bool(getattr(field_config, "needs_num_views", False))

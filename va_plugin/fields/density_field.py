@@ -1,0 +1,106 @@
+"""The InstantNGP-style density field: a hash grid, a small density MLP and a small colour MLP."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Tuple, Type
+
+import torch
+from torch import nn
+
+from va_plugin.errors import ConfigError
+from va_plugin.fields.base import MLP, Field, FieldConfig
+from va_plugin.fields.encodings.hash_grid import HashGridEncoding
+from va_plugin.fields.encodings.positional import PositionalEncoding
+
+TRUNC_EXP_MAX = 15.0
+"""Largest exponent of :func:`trunc_exp` (exp(15) is about 3.3e6, far above any useful density)."""
+
+
+class _TruncatedExp(torch.autograd.Function):
+    """``exp`` whose forward input is clamped at ``TRUNC_EXP_MAX`` and whose gradient uses the input
+    clamped to ``[-TRUNC_EXP_MAX, TRUNC_EXP_MAX]`` (InstantNGP's density activation): finite for any
+    finite input, and a raw density that overshoots still gets a bounded gradient pulling it back."""
+
+    @staticmethod
+    def forward(ctx, x: torch.Tensor) -> torch.Tensor:
+        ctx.save_for_backward(x)
+        return torch.exp(x.clamp(max=TRUNC_EXP_MAX))
+
+    @staticmethod
+    def backward(ctx, grad: torch.Tensor) -> torch.Tensor:
+        (x,) = ctx.saved_tensors
+        return grad * torch.exp(x.clamp(-TRUNC_EXP_MAX, TRUNC_EXP_MAX))
+
+
+def trunc_exp(x: torch.Tensor) -> torch.Tensor:
+    """Density from raw density: a truncated exponential, ``[...] -> [...]``, always finite and >= 0."""
+    return _TruncatedExp.apply(x)
+
+
+@dataclass
+class DensityFieldConfig(FieldConfig):
+    """An NGP field: hash grid -> density MLP -> (raw density, feature); colour MLP on (feature, gamma(d))."""
+
+    _target: Type = field(default_factory=lambda: DensityField)
+    n_levels: int = 12
+    """Levels of the hash grid."""
+    features_per_level: int = 2
+    """Features stored per grid vertex."""
+    log2_hashmap_size: int = 17
+    """log2 of the most table entries a level may have."""
+    base_resolution: int = 16
+    """Cells per axis of the coarsest level."""
+    max_resolution: int = 512
+    """Cells per axis of the finest level."""
+    bound: float = 1.0
+    """The grid covers [-bound, bound]^3; it must hold the scene's bounding sphere."""
+    hidden_width: int = 64
+    """Hidden width of the density MLP."""
+    hidden_layers: int = 1
+    """Hidden layers of the density MLP."""
+    geo_feature_dim: int = 15
+    """Width of the geometry feature passed to the colour MLP (InstantNGP: 15)."""
+    direction_frequencies: int = 4
+    """Frequency bands of gamma(d) in the colour MLP."""
+    color_width: int = 64
+    """Hidden width of the colour MLP; f_shared has this width."""
+    color_layers: int = 2
+    """Hidden layers of the colour MLP."""
+
+
+class DensityField(Field):
+    geometry_kind = "density"
+
+    def __init__(self, config: DensityFieldConfig) -> None:
+        super().__init__()
+        if config.bound <= 0:
+            raise ConfigError(f"field.bound must be positive, got {config.bound}")
+        self.config = config
+        self.bound = float(config.bound)
+        self.encoding = HashGridEncoding(n_levels=config.n_levels, n_features_per_level=config.features_per_level,
+                                         log2_hashmap_size=config.log2_hashmap_size,
+                                         base_resolution=config.base_resolution,
+                                         max_resolution=config.max_resolution, bound=config.bound)
+        self.density_net = MLP(self.encoding.output_dim, config.hidden_width, config.hidden_layers,
+                               1 + config.geo_feature_dim)
+        self.direction_encoding = PositionalEncoding(3, config.direction_frequencies)
+        self.color_net = MLP(self.direction_encoding.output_dim + config.geo_feature_dim, config.color_width,
+                             config.color_layers, 3, out_activation=nn.Sigmoid())
+        self.feature_dim = config.color_width
+
+    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+        """``positions [..., 3]`` -> (raw density ``[..., 1]``, before :func:`trunc_exp`; feature ``[..., G]``)."""
+        out = self.density_net(self.encoding(positions))
+        return out[..., :1], out[..., 1:]
+
+    def density(self, positions: torch.Tensor) -> torch.Tensor:
+        """Activated density ``[..., 1]`` (>= 0)."""
+        return trunc_exp(self.geometry(positions)[0])
+
+    def color_features(self, positions, directions, normals, geo_features) -> torch.Tensor:
+        # The geometry feature already encodes the position; normals are unused (a density field has none).
+        return self.color_net.features(torch.cat([self.direction_encoding(directions), geo_features], dim=-1))
+
+    def decode_color(self, features: torch.Tensor) -> torch.Tensor:
+        return self.color_net.head(features)

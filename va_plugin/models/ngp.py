@@ -1,0 +1,197 @@
+"""The NGP density model (InstantNGP-style): a hash-grid density field rendered with an occupancy grid.
+
+Rays are sampled uniformly inside the bounding sphere. Samples in cells the occupancy grid marks empty
+are dropped before the field is evaluated; so are samples behind an opaque part of the ray (early
+termination, found by a cheap gradient-free pass over the kept samples). The field runs on the packed
+list of the remaining samples, whose density and colour are scattered back into the dense
+``[n_rays, n_samples]`` layout (zero density elsewhere) for volume rendering.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Type
+
+import torch
+from torch import nn
+
+from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback
+from va_plugin.errors import ConfigError
+from va_plugin.fields.base import FieldConfig
+from va_plugin.fields.density_field import DensityFieldConfig, trunc_exp
+from va_plugin.model_components import losses, renderers
+from va_plugin.model_components.occupancy_grid import (OccupancyGrid, OccupancyGridConfig, scatter,
+                                                        transmittance_before)
+from va_plugin.model_components.samplers import uniform_edges
+from va_plugin.models.base import Model, ModelConfig, SceneInfo, wants_num_views
+from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
+
+
+@dataclass
+class NGPModelConfig(ModelConfig):
+    """NGP: hash-grid density field, occupancy-grid marching, early ray termination, mask loss."""
+
+    _target: Type = field(default_factory=lambda: NGPModel)
+    occupancy_grid: OccupancyGridConfig = field(default_factory=OccupancyGridConfig)
+    """Empty-space skipping (``occupancy_grid.enabled=false`` evaluates every sample)."""
+    field: FieldConfig = field(default_factory=DensityFieldConfig)
+    """The field (a density field, or a view-adaptive wrapper around one)."""
+    n_samples: int = 96
+    """Samples (sections) per ray, spread uniformly between where the ray enters and leaves the bounding sphere."""
+    early_stop_transmittance: float = 1e-4
+    """Samples whose transmittance is below this are not evaluated with gradients (0: no early termination)."""
+    mask_weight: float = 0.1
+    """Weight of the mask loss against the foreground mask (0 turns it off)."""
+    distortion_weight: float = 0.0
+    """Weight of the distortion loss (mip-NeRF 360) that pulls each ray's weights together (0: off)."""
+    density_threshold: float = 10.0
+    """Density of the extracted surface: the mesh is the level set density = threshold (mesh_field is
+    threshold - density, negative inside)."""
+
+
+class NGPModel(Model):
+    config: NGPModelConfig
+
+    def __init__(self, config: NGPModelConfig, scene: SceneInfo) -> None:
+        super().__init__(config, scene)
+        if config.n_samples < 1:
+            raise ConfigError(f"n_samples must be at least 1, got {config.n_samples}")
+        if not 0.0 <= config.early_stop_transmittance < 1.0:
+            raise ConfigError(f"early_stop_transmittance must be in [0, 1), got {config.early_stop_transmittance}")
+        if config.density_threshold <= 0:
+            raise ConfigError(f"density_threshold must be positive, got {config.density_threshold}")
+        self.field = config.field.setup(num_train_views=scene.num_train_views) \
+            if wants_num_views(config.field) else config.field.setup()
+        if self.field.geometry_kind != "density":
+            raise ConfigError("the ngp model needs a field whose geometry is a density")
+        bound = getattr(self.field, "bound", None)
+        if bound is not None and bound < scene.scene_radius:
+            raise ConfigError(f"field.bound ({bound}) must be at least the scene radius ({scene.scene_radius})")
+        self.occupancy_grid: Optional[OccupancyGrid] = \
+            config.occupancy_grid.setup(bound=scene.scene_radius) if config.occupancy_grid.enabled else None
+        self._views_marked = False
+        self.samples_per_ray = float(config.n_samples)
+        """Samples per ray evaluated with gradients in the last training batch."""
+
+    # -- training -------------------------------------------------------------------------------
+    def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        return self.field.param_groups()
+
+    def training_callbacks(self) -> List[object]:
+        callbacks = list(super().training_callbacks())
+        if self.occupancy_grid is not None:
+            callbacks.append(TrainingCallback(self._update_occupancy, BEFORE_STEP,
+                                              self.config.occupancy_grid.update_every))
+        return callbacks
+
+    def _update_occupancy(self, step: int, trainer: object) -> None:
+        grid, fraction = self.occupancy_grid, self.config.occupancy_grid.min_view_fraction
+        if not self._views_marked and fraction > 0:
+            # the training cameras are known to the data manager only, which the trainer holds
+            cameras = trainer.pipeline.datamanager.cameras
+            grid.restrict_to_views(cameras, max(1, math.ceil(fraction * len(cameras) - 1e-6)))
+            self._views_marked = True
+        grid.update(step, self.density)
+
+    def diagnostics(self) -> Dict[str, float]:
+        out = {**super().diagnostics(), "samples_per_ray": round(self.samples_per_ray, 3)}
+        if self.occupancy_grid is not None:
+            out["occupied_fraction"] = round(self.occupancy_grid.occupied_fraction(), 4)
+        return out
+
+    def density(self, points: torch.Tensor) -> torch.Tensor:
+        """Density ``[...]`` (>= 0) at points ``[..., 3]``."""
+        return trunc_exp(self.field.geometry(points)[0][..., 0])
+
+    # -- rendering ------------------------------------------------------------------------------
+    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+        if self.training:
+            return self._render(ray_bundle)
+        with torch.no_grad():
+            return self._render(ray_bundle)
+
+    def _samples_to_evaluate(self, samples: RaySamples) -> tuple[torch.Tensor, Optional[tuple]]:
+        """Which samples ``[n_rays, n_samples]`` the field must evaluate: inside the sphere, in an occupied
+        cell, and (with early termination) in front of the point where the ray turns opaque.
+
+        Also returns the gradient-free pass's (raw density, feature) of those samples when no gradient
+        is needed, so they are not evaluated twice."""
+        keep = samples.deltas > 0
+        if self.occupancy_grid is not None:
+            keep &= self.occupancy_grid.occupied(samples.positions)
+        if self.config.early_stop_transmittance <= 0 or not bool(keep.any()):
+            return keep, None
+        with torch.no_grad():
+            raw, geo_features = self.field.geometry(samples.positions[keep])
+            alpha = renderers.alpha_from_density(scatter(trunc_exp(raw[..., 0]), keep), samples.deltas)
+            visible = keep & (transmittance_before(alpha) >= self.config.early_stop_transmittance)
+        if torch.is_grad_enabled():
+            return visible, None
+        chosen = visible[keep]
+        return visible, (raw[chosen], geo_features[chosen])
+
+    def _render(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+        nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions, self.scene.scene_radius)
+        ray_bundle.nears, ray_bundle.fars = nears, fars
+        inner = uniform_edges(nears, fars, self.config.n_samples - 1, jitter=self.training)
+        samples = RaySamples.from_edges(ray_bundle, torch.cat([nears, inner, fars], dim=-1))
+        keep, evaluated = self._samples_to_evaluate(samples)
+        positions = samples.positions[keep]  # [n_kept, 3], row-major over (ray, sample)
+        raw, geo_features = evaluated if evaluated is not None else self.field.geometry(positions)
+        ray_index = keep.nonzero()[:, 0]
+        directions = ray_bundle.directions[ray_index]
+        camera_indices = ray_bundle.camera_indices[ray_index]
+        color = self.field.color(positions, directions, torch.zeros_like(positions), geo_features, camera_indices)
+        alpha = renderers.alpha_from_density(scatter(trunc_exp(raw[..., 0]), keep), samples.deltas)
+        weights = renderers.weights_from_alpha(alpha)
+        if self.training:
+            self.samples_per_ray = positions.shape[0] / max(len(ray_bundle), 1)
+        outputs = {
+            "rgb": renderers.render_rgb(weights, scatter(color["rgb"], keep), self.background),
+            "accumulation": weights.sum(-1, keepdim=True),
+            "depth": renderers.render_depth(weights, samples.t_mid),
+            "weights": weights[keep],  # [n_kept], like the positions given to field.color
+        }
+        if self.training and self.config.distortion_weight > 0:
+            scale = 1.0 / (2.0 * self.scene.scene_radius)  # distances in units of the bound's diameter
+            outputs["distortion"] = distortion(weights, samples.t_mid * scale, samples.deltas * scale)
+        outputs.update({k: v for k, v in color.items() if k != "rgb"})
+        return outputs
+
+    def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
+        cfg = self.config
+        loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"], cfg.rgb_loss)}
+        if cfg.mask_weight > 0 and "mask" in batch:
+            loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
+        if "distortion" in outputs:
+            loss["distortion"] = cfg.distortion_weight * outputs["distortion"].mean()
+        extra = getattr(self.field, "extra_losses", None)
+        if extra is not None:
+            loss.update(extra(outputs))
+        return self.apply_extra_losses(loss, outputs, batch)
+
+    # -- export ---------------------------------------------------------------------------------
+    @torch.no_grad()
+    def mesh_field(self, points: torch.Tensor) -> torch.Tensor:
+        """``density_threshold - density``; cells the occupancy grid marks empty count as empty, as in
+        rendering (density left in them, e.g. from the warm-up, is never rendered or trained)."""
+        density = self.density(points)
+        if self.occupancy_grid is not None:
+            density = density * self.occupancy_grid.occupied(points)
+        return self.config.density_threshold - density
+
+    @torch.no_grad()
+    def surface_color(self, points: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+        camera = torch.full(points.shape[:-1], -1, dtype=torch.long, device=points.device)
+        geo_features = self.field.geometry(points)[1]
+        return self.field.color(points, -normals, normals, geo_features, camera)["rgb"]
+
+
+def distortion(weights: torch.Tensor, t_mid: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
+    """Distortion of each ray ``[n_rays]`` (mip-NeRF 360, eq. 15): ``sum_ij w_i w_j |t_i - t_j| +
+    1/3 sum_i w_i^2 delta_i``, in O(n) with exclusive prefix sums over the sorted samples ``[n_rays, n]``."""
+    w_before = torch.cumsum(weights, dim=-1) - weights
+    wt_before = torch.cumsum(weights * t_mid, dim=-1) - weights * t_mid
+    pairs = 2.0 * (weights * (t_mid * w_before - wt_before)).sum(-1)
+    return pairs + (weights * weights * deltas).sum(-1) / 3.0
