@@ -5,6 +5,7 @@ from setuptools import find_packages, setup
 METHODS = [
     "neus = method_configs.neus:neus",
     "ngp = method_configs.ngp:ngp",
+    "va-neus = method_configs.va_neus:va_neus",
 ]
 
 setup(

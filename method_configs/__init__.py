@@ -2,5 +2,6 @@
 
 from method_configs.neus import neus
 from method_configs.ngp import ngp
+from method_configs.va_neus import va_neus
 
-BUILTIN_METHODS = {"neus": neus, "ngp": ngp}
+BUILTIN_METHODS = {"neus": neus, "ngp": ngp, "va-neus": va_neus}

@@ -21,7 +21,7 @@ def ngp_config() -> TrainerConfig:
         ),
         optimizers={"fields": OptimizerConfig(lr=1e-2)},
         scheduler=SchedulerConfig(warmup_steps=50, final_fraction=0.05),
-        max_steps=600,
+        max_steps=1000,
     )
 
 
@@ -31,10 +31,10 @@ def _fast(config: TrainerConfig) -> None:
 
 
 def _accurate(config: TrainerConfig) -> None:
-    """InstantNGP's full-size grid (16 levels up to 2048, 2^19 entries), more samples and steps."""
-    config.max_steps = 5000
-    config.pipeline.datamanager.rays_per_batch = 4096
-    config.pipeline.model.n_samples = 256
+    """InstantNGP's full-size grid (16 levels up to 2048, 2^19 entries), more rays, samples and steps."""
+    config.max_steps = 4000
+    config.pipeline.datamanager.rays_per_batch = 1024
+    config.pipeline.model.n_samples = 192
     field = config.pipeline.model.field
     field.n_levels, field.log2_hashmap_size, field.max_resolution = 16, 19, 2048
 
@@ -44,6 +44,6 @@ ngp = MethodSpecification(
     description="InstantNGP-style density field (hash grid, occupancy grid, early ray termination, mask loss)",
     presets={
         "fast": Preset("fewer rays and steps: a rough mesh quickly", _fast),
-        "accurate": Preset("InstantNGP's full-size hash grid, 256 samples per ray, 5000 steps", _accurate),
+        "accurate": Preset("InstantNGP's full-size hash grid, 192 samples per ray, 4000 steps", _accurate),
     },
 )

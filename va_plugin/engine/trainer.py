@@ -203,7 +203,8 @@ class Trainer:
         return True
 
     # -- logging --------------------------------------------------------------------------------
-    def _log(self, record: Dict[str, Any]) -> None:
+    def log(self, record: Dict[str, Any]) -> None:
+        """Append one record to the run's metrics.jsonl."""
         self.run_dir.mkdir(parents=True, exist_ok=True)
         with open(self.run_dir / "metrics.jsonl", "a", encoding="utf-8") as handle:
             handle.write(json.dumps(record) + "\n")
@@ -265,12 +266,12 @@ class Trainer:
             record.update({"step": self.step, "train_seconds": round(self.train_seconds, 3),
                            "it_per_s": round(len(recent) / max(sum(recent), 1e-9), 3), "bad_steps": self.bad_steps})
             if self.step % cfg.log_every == 0 or self.step == cfg.max_steps:
-                self._log(record)
+                self.log(record)
             bar.set_postfix({k: f"{record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record})
             if cfg.eval_every > 0 and self.step % cfg.eval_every == 0 and self.step < cfg.max_steps:
                 metrics, _ = self.pipeline.evaluate_views(cfg.eval_views)
                 if metrics:
-                    self._log({"step": self.step, **metrics})
+                    self.log({"step": self.step, **metrics})
             if self.step % cfg.checkpoint_every == 0 or self.step == cfg.max_steps:
                 self.save_checkpoint()
         bar.close()

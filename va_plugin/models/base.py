@@ -78,12 +78,15 @@ class Model(nn.Module):
         raise NotImplementedError
 
     def training_callbacks(self) -> List[object]:
-        """Callbacks the trainer runs (e.g. phase switches); the model knows nothing of the trainer."""
-        return []
+        """Callbacks the trainer runs (e.g. phase switches); the model knows nothing of the trainer.
+        By default those of the model's ``field``, if it has any."""
+        make = getattr(getattr(self, "field", None), "training_callbacks", None)
+        return list(make()) if make is not None else []
 
     def diagnostics(self) -> Dict[str, float]:
-        """Scalars worth logging (e.g. inv_s)."""
-        return {}
+        """Scalars worth logging (e.g. inv_s); by default those of the model's ``field``."""
+        report = getattr(getattr(self, "field", None), "diagnostics", None)
+        return dict(report()) if report is not None else {}
 
     # -- evaluation and export ------------------------------------------------------------------
     def render_rays(self, ray_bundle: RayBundle, keys: Sequence[str] = ("rgb", "accumulation", "depth")

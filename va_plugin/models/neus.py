@@ -70,7 +70,7 @@ class NeuSModel(Model):
         return groups
 
     def diagnostics(self) -> Dict[str, float]:
-        return {"inv_s": float(self.variance.inv_s().detach())}
+        return {**super().diagnostics(), "inv_s": float(self.variance.inv_s().detach())}
 
     # -- sampling -------------------------------------------------------------------------------
     @torch.no_grad()

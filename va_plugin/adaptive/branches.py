@@ -1,0 +1,76 @@
+"""Per-view MLP branches F_view,i (the paper's eq. 4), all views in one batched operation.
+
+Each branch is a residual MLP on the shared feature: ``f_i = f_shared + B_i(f_shared)``. The last layer
+starts at zero, so when the branches are switched on (phase 2) every view renders exactly what the
+pre-trained shared network rendered, and each branch only grows the correction its view needs.
+"""
+
+from __future__ import annotations
+
+import math
+
+import torch
+from torch import nn
+
+
+class ViewBranches(nn.Module):
+    """``n_views`` residual MLPs of ``n_layers`` linear layers (``width`` hidden units), weights stacked.
+
+    Args:
+        n_views: number of training views n.
+        feature_dim: width D of f_shared (input and output of every branch).
+        width: hidden width of a branch (the paper: 128).
+        n_layers: linear layers per branch, at least 1 (the paper: 3).
+    """
+
+    def __init__(self, n_views: int, feature_dim: int, width: int = 128, n_layers: int = 3) -> None:
+        super().__init__()
+        if n_views < 1 or n_layers < 1:
+            raise ValueError("ViewBranches needs at least one view and one layer")
+        self.n_views, self.feature_dim = n_views, feature_dim
+        dims = [feature_dim] + [width] * (n_layers - 1) + [feature_dim]
+        self.weights = nn.ParameterList()
+        self.biases = nn.ParameterList()
+        for k, (a, b) in enumerate(zip(dims[:-1], dims[1:])):
+            bound = 1.0 / math.sqrt(a)
+            w = torch.empty(n_views, a, b).uniform_(-bound, bound)
+            bias = torch.empty(n_views, 1, b).uniform_(-bound, bound)
+            if k == n_layers - 1:  # zero correction at the start of phase 2
+                w.zero_()
+                bias.zero_()
+            self.weights.append(nn.Parameter(w))
+            self.biases.append(nn.Parameter(bias))
+
+    def _mlp(self, x: torch.Tensor) -> torch.Tensor:
+        """``[n_views, m, D] -> [n_views, m, D]``: branch k applied to row block k."""
+        last = len(self.weights) - 1
+        for k, (w, b) in enumerate(zip(self.weights, self.biases)):
+            x = torch.baddbmm(b, x, w)
+            if k < last:
+                x = torch.relu(x)
+        return x
+
+    def forward_all(self, features: torch.Tensor) -> torch.Tensor:
+        """Every branch on every sample: ``[S, D] -> [S, n_views, D]``."""
+        x = features.unsqueeze(0).expand(self.n_views, -1, -1)
+        return (x + self._mlp(x)).transpose(0, 1)
+
+    def forward_own(self, features: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
+        """Only the branch of each sample's own view: ``[S, D], views [S] in [0, n) -> [S, D]``.
+
+        Samples are grouped by view into a padded ``[n_views, max_count, D]`` block so all branches
+        still run as one batched matmul, at about the cost of a single branch over all samples.
+        """
+        if features.shape[0] == 0:
+            return features
+        order = torch.argsort(views)
+        sorted_views = views[order]
+        counts = torch.bincount(sorted_views, minlength=self.n_views)
+        starts = torch.cumsum(counts, 0) - counts
+        slot = torch.arange(views.shape[0], device=views.device) - starts[sorted_views]
+        padded = features.new_zeros(self.n_views, int(counts.max()), features.shape[-1])
+        padded[sorted_views, slot] = features[order]
+        out = self._mlp(padded)[sorted_views, slot]
+        result = torch.empty_like(out)
+        result[order] = out
+        return features + result

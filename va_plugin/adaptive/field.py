@@ -1,0 +1,241 @@
+"""``ViewAdaptiveField``: the paper's view-adaptive renderer as a wrapper around any base field.
+
+The base field's colour path is split into f_shared (``color_features``) and ``decode_color``; the
+wrapper sits between the halves:
+
+    f_shared --(branch i)--> f_i --(self-attention over i = 1..n)--> f_fused,i --decode--> RGB
+
+A ray from training view i renders with f_fused,i. Novel views, evaluation and mesh colours render
+with the *canonical* feature: the mean over views of f_fused,i (``canonical="mean"``, DESIGN.md's
+choice) or f_shared itself (``canonical="shared"``, as cheap as the base field). Geometry is the base
+field's, shared by all views, so one surface exists to extract.
+
+The field knows nothing about training steps: it holds a phase flag (1 pre-training, 2 branches,
+3 fusion) that a trainer callback (``va_plugin.adaptive.phases``) sets.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, List, Optional, Type
+
+import torch
+from torch import nn
+
+from va_plugin.adaptive.attention import ViewAttention
+from va_plugin.adaptive.branches import ViewBranches
+from va_plugin.adaptive.losses import attention_entropy, feature_consistency, weighted_mean
+from va_plugin.errors import ConfigError
+from va_plugin.fields.base import Field, FieldConfig
+from va_plugin.fields.sdf_field import SDFFieldConfig
+
+PRETRAIN, BRANCHES, FUSION = 1, 2, 3
+PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branches", FUSION: "self-attention fusion"}
+
+
+@dataclass
+class ViewAdaptiveFieldConfig(FieldConfig):
+    """Per-view branches + self-attention fusion around a base field (the paper's Sec. 3)."""
+
+    _target: Type = field(default_factory=lambda: ViewAdaptiveField)
+    base: FieldConfig = field(default_factory=SDFFieldConfig)
+    """The wrapped field (an SDF field for NeuS, a density field for NGP)."""
+    branches: bool = True
+    """Per-view branches (off: the base field alone, the ablation's baseline)."""
+    fusion: bool = True
+    """Self-attention fusion across the branch features (needs branches)."""
+    entropy_weight: float = 0.01
+    """lambda_entropy of eq. 14 (the paper's 0.01); 0 turns L_entropy off."""
+    consistency_weight: float = 0.1
+    """lambda_consistency of eq. 14 (the paper's 0.1); 0 turns L_consistency off."""
+    branch_width: int = 128
+    """Hidden width of a branch (the paper: 128)."""
+    branch_layers: int = 3
+    """Linear layers per branch (the paper: 3)."""
+    attention_dim: int = 128
+    """Width of the query/key/value projections, split over the heads."""
+    attention_heads: int = 4
+    """Attention heads H (the paper: 4)."""
+    canonical: str = "mean"
+    """Feature for novel views and mesh colours: "mean" (mean over views of f_fused,i) or "shared" (f_shared)."""
+    pretrain_fraction: float = 1.0 / 3.0
+    """Share of the step budget spent in phase 1, global pre-training (the paper: 100k of 300k)."""
+    branch_fraction: float = 1.0 / 3.0
+    """Share of the step budget in phase 2 (branches without fusion); phase 3 gets the rest."""
+    shared_lr_scale: float = 0.1
+    """Learning-rate factor of the shared field in phases 2 and 3 (the paper: 1/10)."""
+    skip_consistent_scenes: bool = True
+    """After pre-training, measure how well the shared field explains each input; when every view is
+    explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
+    consistent_residual_db: float = 1.0
+    """Threshold of that test: the largest per-view PSNR shortfall below the best view, in dB."""
+    needs_num_views: bool = field(default=True, repr=False)
+    """Tells the model to pass the number of training views (not an option)."""
+
+    def validate(self) -> None:
+        if self.fusion and not self.branches:
+            raise ConfigError("fusion needs the per-view branches (set branches=true or fusion=false)")
+        if self.canonical not in ("mean", "shared"):
+            raise ConfigError(f"canonical must be 'mean' or 'shared', got {self.canonical!r}")
+        if not (0.0 <= self.pretrain_fraction and 0.0 <= self.branch_fraction
+                and self.pretrain_fraction + self.branch_fraction <= 1.0):
+            raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
+                              f"{self.pretrain_fraction} and {self.branch_fraction}")
+        if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale) < 0:
+            raise ConfigError("entropy_weight, consistency_weight and shared_lr_scale must be >= 0")
+        if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
+            raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
+        if self.attention_dim % self.attention_heads:
+            raise ConfigError(f"attention_dim {self.attention_dim} must be a multiple of "
+                              f"attention_heads {self.attention_heads}")
+
+
+class ViewAdaptiveField(Field):
+    """A base field plus n per-view branches and a self-attention fusion module."""
+
+    def __init__(self, config: ViewAdaptiveFieldConfig, num_train_views: int) -> None:
+        super().__init__()
+        config.validate()
+        if num_train_views < 1:
+            raise ConfigError("a view-adaptive field needs at least one training view")
+        self.config = config
+        self.num_views = num_train_views
+        self.base = config.base.setup()
+        self.geometry_kind = self.base.geometry_kind
+        self.feature_dim = self.base.feature_dim
+        d = self.feature_dim
+        self.branches = ViewBranches(num_train_views, d, config.branch_width, config.branch_layers) \
+            if config.branches else None
+        self.attention = ViewAttention(d, config.attention_dim, config.attention_heads) \
+            if config.fusion else None
+        # persistent so a loaded checkpoint renders in the phase it finished in
+        self.register_buffer("phase", torch.tensor(PRETRAIN))
+        self.register_buffer("skipped", torch.tensor(False))
+        self._phase = PRETRAIN  # host copy of the buffer: no device sync per colour query
+        self.register_load_state_dict_post_hook(lambda module, _: module._refresh_phase())
+        self.register_buffer("attention_sum", torch.zeros(num_train_views, num_train_views))
+        self.register_buffer("attention_mass", torch.zeros(()))
+        self._last_alpha: Optional[torch.Tensor] = None
+
+    # -- phases (set by the trainer's callback) ---------------------------------------------------
+    def set_phase(self, phase: int) -> None:
+        self.phase.fill_(int(phase))
+        self._phase = int(phase)
+
+    def _refresh_phase(self) -> None:
+        self._phase = int(self.phase)
+
+    @property
+    def current_phase(self) -> int:
+        return self._phase
+
+    def branches_active(self) -> bool:
+        return self.branches is not None and self.current_phase >= BRANCHES
+
+    def fusion_active(self) -> bool:
+        return self.attention is not None and self.current_phase >= FUSION
+
+    # -- the Field interface ----------------------------------------------------------------------
+    def geometry(self, positions: torch.Tensor):
+        return self.base.geometry(positions)
+
+    def color_features(self, positions, directions, normals, geo_features) -> torch.Tensor:
+        return self.base.color_features(positions, directions, normals, geo_features)
+
+    def decode_color(self, features: torch.Tensor) -> torch.Tensor:
+        return self.base.decode_color(features)
+
+    def __getattr__(self, name: str):
+        # backbone-specific queries (sdf(), density(), ...) go to the wrapped field
+        try:
+            return super().__getattr__(name)
+        except AttributeError:
+            return getattr(super().__getattr__("base"), name)
+
+    def color(self, positions, directions, normals, geo_features, camera_indices=None) -> Dict[str, torch.Tensor]:
+        """RGB ``[..., 3]`` of samples; training rays (``camera_indices >= 0``) use their view's
+        f_fused,i, novel-view rays (-1) the canonical feature. While fusion trains, the per-sample
+        regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along."""
+        shared = self.base.color_features(positions, directions, normals, geo_features)
+        if not self.branches_active():
+            return {"rgb": self.base.decode_color(shared)}
+        lead, d = shared.shape[:-1], shared.shape[-1]
+        flat = shared.reshape(-1, d)
+        if camera_indices is None:
+            views = torch.full(lead, -1, dtype=torch.long, device=flat.device).reshape(-1)
+        else:
+            views = camera_indices.reshape(-1).to(flat.device)
+        novel = views < 0
+        cfg = self.config
+        fusion = self.fusion_active()
+        if self.config.canonical == "shared" and bool(novel.all()):
+            return {"rgb": self.base.decode_color(shared)}
+        if not fusion and not bool(novel.any()):
+            # branches alone: each sample needs only its own view's branch
+            return {"rgb": self.base.decode_color(self.branches.forward_own(flat, views)).reshape(lead + (3,))}
+        tokens = self.branches.forward_all(flat)  # [S, n, D]
+        alpha = None
+        if fusion:
+            tokens, alpha = self.attention(tokens)
+        own = tokens.gather(1, views.clamp_min(0)[:, None, None].expand(-1, 1, d)).squeeze(1)
+        canonical = flat if cfg.canonical == "shared" else tokens.mean(1)
+        feature = torch.where(novel[:, None], canonical, own)
+        out = {"rgb": self.base.decode_color(feature).reshape(lead + (3,))}
+        if fusion and self.training:
+            if cfg.entropy_weight > 0:
+                out["va_entropy"] = attention_entropy(alpha).reshape(lead)
+            if cfg.consistency_weight > 0:
+                out["va_consistency"] = feature_consistency(tokens).reshape(lead)
+            self._last_alpha = alpha.detach().mean(1)  # [S, n, n], averaged over heads
+        return out
+
+    # -- losses and diagnostics -------------------------------------------------------------------
+    def extra_losses(self, outputs: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
+        """The weighted regularizers of eq. 14, averaged over samples by their rendering weights."""
+        cfg = self.config
+        weights = outputs.get("weights")
+        losses: Dict[str, torch.Tensor] = {}
+        if "va_entropy" in outputs:
+            losses["entropy"] = cfg.entropy_weight * weighted_mean(outputs["va_entropy"], weights)
+        if "va_consistency" in outputs:
+            losses["consistency"] = cfg.consistency_weight * weighted_mean(outputs["va_consistency"], weights)
+        self._accumulate_attention(weights)
+        return losses
+
+    @torch.no_grad()
+    def _accumulate_attention(self, weights: Optional[torch.Tensor]) -> None:
+        """Running sum of the attention matrix over training samples, weighted by rendering weight
+        (so it reflects samples on the surface, not in empty space)."""
+        alpha, self._last_alpha = self._last_alpha, None
+        if alpha is None:
+            return
+        if weights is not None and weights.numel() == alpha.shape[0]:
+            w = weights.detach().reshape(-1, 1, 1).to(alpha.dtype)
+        else:
+            w = torch.ones_like(alpha[:, :1, :1])
+        self.attention_sum += (alpha * w).sum(0)
+        self.attention_mass += w.sum()
+
+    def attention_matrix(self) -> Optional[torch.Tensor]:
+        """The n x n attention matrix averaged over surface samples (row i: how view i's feature
+        draws on each view j), or None before fusion has trained."""
+        if float(self.attention_mass) <= 0:
+            return None
+        return (self.attention_sum / self.attention_mass).cpu()
+
+    def param_groups(self) -> Dict[str, List[nn.Parameter]]:
+        groups = {"fields": list(self.base.parameters())}
+        adaptive: List[nn.Parameter] = []
+        for module in (self.branches, self.attention):
+            if module is not None:
+                adaptive.extend(module.parameters())
+        groups["adaptive"] = adaptive
+        return groups
+
+    def training_callbacks(self) -> list:
+        from va_plugin.adaptive.phases import phase_callback
+
+        return [phase_callback(self)]
+
+    def diagnostics(self) -> Dict[str, float]:
+        return {"phase": float(self.current_phase)}

@@ -1,0 +1,39 @@
+"""The paper's attention regularizers, per sample (eqs. 8 and 9), and their weighted reduction."""
+
+from __future__ import annotations
+
+from typing import Optional
+
+import torch
+
+ALPHA_FLOOR = 1e-8
+"""alpha log alpha is evaluated as alpha * log(max(alpha, 1e-8)): its value at alpha = 0 is 0 (the
+limit) and its gradient stays finite, where log(0) would give -inf and then NaN."""
+
+
+def attention_entropy(alpha: torch.Tensor) -> torch.Tensor:
+    """``sum_i sum_j alpha_ij log alpha_ij``, averaged over heads: ``[S, H, n, n] -> [S]``.
+
+    At most 0 (every row one-hot); its minimum, ``-n log n``, is reached by uniform rows, so
+    minimising it spreads attention (eq. 8).
+    """
+    return (alpha * torch.log(alpha.clamp_min(ALPHA_FLOOR))).sum((-1, -2)).mean(-1)
+
+
+def feature_consistency(fused: torch.Tensor) -> torch.Tensor:
+    """``sum_i || f_fused,i - mean_j f_fused,j ||^2``: ``[S, n, D] -> [S]`` (eq. 9)."""
+    centred = fused - fused.mean(dim=1, keepdim=True)
+    return (centred * centred).sum((-1, -2))
+
+
+def weighted_mean(values: torch.Tensor, weights: Optional[torch.Tensor]) -> torch.Tensor:
+    """Mean of per-sample ``values`` weighted by (detached) rendering ``weights`` of the same shape;
+    the plain mean without weights, or when the weights sum to (almost) nothing."""
+    if values.numel() == 0:
+        return values.sum()
+    if weights is None or weights.shape != values.shape:
+        return values.mean()
+    w = weights.detach()
+    total = w.sum()
+    # no host sync (float(total)) on the hot path: pick the branch on the device
+    return torch.where(total > 1e-6, (values * w).sum() / total.clamp_min(1e-6), values.mean())

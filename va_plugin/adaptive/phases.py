@@ -1,0 +1,128 @@
+"""The three training phases of the paper's Sec. 3.4, switched by a trainer callback.
+
+Phase 1 trains the shared field alone; phase 2 adds the per-view branches at the full learning rate
+while the shared field drops to ``shared_lr_scale`` of its own; phase 3 switches the attention fusion
+on. Phase boundaries are fractions of the step budget, so the phase of a step is a pure function of
+(step, budget): a resumed run lands in the same phase without extra state.
+
+At the end of phase 1 the callback can measure whether the inputs disagree at all (see
+:func:`view_residuals`) and, if they do not, keep the run in phase 1: "skip what a scene doesn't need".
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+from typing import Dict, List
+
+import torch
+from tqdm import tqdm
+
+from va_plugin.adaptive.field import BRANCHES, FUSION, PHASE_NAMES, PRETRAIN, ViewAdaptiveField
+from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback
+from va_plugin.rays import RayBundle
+
+RESIDUALS_FILE = "view_residuals.json"
+
+
+def phase_at(step: int, max_steps: int, pretrain_fraction: float, branch_fraction: float) -> int:
+    """Phase (1, 2 or 3) of 0-based ``step`` in a budget of ``max_steps``."""
+    if step < round(pretrain_fraction * max_steps):
+        return PRETRAIN
+    if step < round((pretrain_fraction + branch_fraction) * max_steps):
+        return BRANCHES
+    return FUSION
+
+
+@torch.no_grad()
+def view_residuals(pipeline, max_pixels: int = 4096) -> List[Dict[str, float]]:
+    """How well the shared (canonical) field explains each training input.
+
+    Renders up to ``max_pixels`` pixels of each training view (an even stride over the image, so no
+    random generator is touched and a resumed run decides the same) with the canonical path, and
+    returns per view the PSNR against the input, over all chosen pixels and over its foreground.
+    """
+    dm = pipeline.datamanager
+    height, width = dm.images.shape[1:3]
+    stride = max(1, math.ceil(math.sqrt(height * width / max_pixels)))
+    rows, cols = torch.meshgrid(torch.arange(stride // 2, height, stride, device=dm.device),
+                                torch.arange(stride // 2, width, stride, device=dm.device), indexing="ij")
+    rows, cols = rows.reshape(-1), cols.reshape(-1)
+    results = []
+    for view in range(dm.num_train_views):
+        views = torch.full_like(rows, view)
+        origins, directions = dm.cameras.generate_rays(views, rows, cols)
+        rays = RayBundle(origins, directions, torch.full_like(views, -1))
+        rgb = pipeline.model.render_rays(rays, keys=("rgb",))["rgb"]
+        target = dm.images[view, rows, cols]
+        err = ((rgb - target) ** 2).mean(-1)
+        entry = {"view": view, "psnr": _psnr(err.mean())}
+        if dm.masks is not None:
+            fg = dm.masks[view, rows, cols, 0] > 0.5
+            if bool(fg.any()):
+                entry["psnr_foreground"] = _psnr(err[fg].mean())
+        results.append(entry)
+    return results
+
+
+def _psnr(mse: torch.Tensor) -> float:
+    return float(-10.0 * torch.log10(mse.clamp_min(1e-10)))
+
+
+def inputs_look_consistent(residuals: List[Dict[str, float]], threshold_db: float) -> bool:
+    """True when no view falls more than ``threshold_db`` below the best-explained view.
+
+    Under consistent inputs the shared field explains every view about equally well; a view that
+    disagrees with the others is explained worse than the rest.
+    """
+    key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
+    values = [r[key] for r in residuals]
+    return max(values) - min(values) <= threshold_db
+
+
+def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
+    """The trainer callback that sets the field's phase and the shared field's learning-rate factor."""
+    cfg = field.config
+
+    def switch(step: int, trainer) -> None:
+        wanted = phase_at(step, trainer.config.max_steps, cfg.pretrain_fraction, cfg.branch_fraction)
+        if field.branches is None or bool(field.skipped):
+            wanted = PRETRAIN
+        elif wanted > PRETRAIN and field.current_phase == PRETRAIN and cfg.skip_consistent_scenes:
+            if _decide_skip(field, trainer, step):
+                wanted = PRETRAIN
+        if wanted != field.current_phase:
+            field.set_phase(wanted)
+            _announce(trainer, step, f"phase {wanted}: {PHASE_NAMES[wanted]}", phase=wanted)
+        trainer.lr_multipliers["fields"] = cfg.shared_lr_scale if wanted >= BRANCHES else 1.0
+
+    return TrainingCallback(switch, BEFORE_STEP)
+
+
+def _decide_skip(field: ViewAdaptiveField, trainer, step: int) -> bool:
+    """Measure the per-view residuals once, record them, and say whether to skip the adaptive phases."""
+    residuals = view_residuals(trainer.pipeline)
+    consistent = inputs_look_consistent(residuals, field.config.consistent_residual_db)
+    record = {"step": step, "threshold_db": field.config.consistent_residual_db, "consistent": consistent,
+              "views": residuals}
+    run_dir = Path(trainer.run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / RESIDUALS_FILE).write_text(json.dumps(record, indent=2))
+    key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
+    spread = max(r[key] for r in residuals) - min(r[key] for r in residuals)
+    if consistent:
+        field.skipped.fill_(True)
+        _announce(trainer, step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB <= "
+                                 f"{field.config.consistent_residual_db} dB): adaptive phases skipped; "
+                                 "force them with skip_consistent_scenes=false", skipped_adaptive=True)
+    else:
+        _announce(trainer, step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB): adaptive phases on",
+                  residual_spread_db=spread)
+    return consistent
+
+
+def _announce(trainer, step: int, message: str, **fields) -> None:
+    if trainer.config.progress:
+        tqdm.write(f"[{trainer.config.method_name}] step {step}: {message}")
+    trainer.log({"step": step, "event": message, **fields})
