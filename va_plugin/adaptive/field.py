@@ -64,6 +64,10 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     """Share of the step budget in phase 2 (branches without fusion); phase 3 gets the rest."""
     shared_lr_scale: float = 0.1
     """Learning-rate factor of the shared field in phases 2 and 3 (the paper: 1/10)."""
+    min_sample_weight: float = 1e-3
+    """Samples whose rendering weight is at most this skip the branches and the attention and keep the
+    shared colour (0: every sample takes the adaptive path). Such a sample changes its pixel by at most
+    this fraction of the colour difference, and a ray's weights mostly sit on a few samples."""
     skip_consistent_scenes: bool = True
     """After pre-training, measure how well the shared field explains each input; when every view is
     explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
@@ -81,8 +85,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
                 and self.pretrain_fraction + self.branch_fraction <= 1.0):
             raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
                               f"{self.pretrain_fraction} and {self.branch_fraction}")
-        if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale) < 0:
-            raise ConfigError("entropy_weight, consistency_weight and shared_lr_scale must be >= 0")
+        if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale, self.min_sample_weight) < 0:
+            raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale and min_sample_weight "
+                              "must be >= 0")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:
@@ -152,27 +157,51 @@ class ViewAdaptiveField(Field):
         except AttributeError:
             return getattr(super().__getattr__("base"), name)
 
-    def color(self, positions, directions, normals, geo_features, camera_indices=None) -> Dict[str, torch.Tensor]:
+    def color(self, positions, directions, normals, geo_features, camera_indices=None,
+              weights=None) -> Dict[str, torch.Tensor]:
         """RGB ``[..., 3]`` of samples; training rays (``camera_indices >= 0``) use their view's
         f_fused,i, novel-view rays (-1) the canonical feature. While fusion trains, the per-sample
-        regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along."""
+        regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along.
+
+        Given the samples' rendering ``weights``, only samples weighing more than
+        ``min_sample_weight`` go through the branches and the attention; the others (empty space,
+        occluded points: most samples of a ray) keep the shared colour and contribute nothing to the
+        regularizers."""
         shared = self.base.color_features(positions, directions, normals, geo_features)
+        cfg = self.config
         if not self.branches_active():
             return {"rgb": self.base.decode_color(shared)}
         lead, d = shared.shape[:-1], shared.shape[-1]
         flat = shared.reshape(-1, d)
         if camera_indices is None:
-            views = torch.full(lead, -1, dtype=torch.long, device=flat.device).reshape(-1)
+            views = torch.full((flat.shape[0],), -1, dtype=torch.long, device=flat.device)
         else:
             views = camera_indices.reshape(-1).to(flat.device)
-        novel = views < 0
-        cfg = self.config
-        fusion = self.fusion_active()
-        if self.config.canonical == "shared" and bool(novel.all()):
+        if cfg.canonical == "shared" and bool((views < 0).all()):
             return {"rgb": self.base.decode_color(shared)}
+        if weights is None or cfg.min_sample_weight <= 0:
+            out = self._adaptive(flat, views, None)
+            return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
+        active = weights.reshape(-1) > cfg.min_sample_weight
+        if cfg.canonical == "shared":
+            active &= views >= 0
+        index = active.nonzero().squeeze(-1)
+        sub = self._adaptive(flat[index], views[index], weights.reshape(-1)[index])
+        out = {"rgb": self.base.decode_color(flat).index_copy(0, index, sub.pop("rgb"))}
+        for key, value in sub.items():  # per-sample regularizers: 0 where not evaluated
+            out[key] = value.new_zeros(flat.shape[0]).index_copy(0, index, value)
+        return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
+
+    def _adaptive(self, flat: torch.Tensor, views: torch.Tensor,
+                  weights: Optional[torch.Tensor]) -> Dict[str, torch.Tensor]:
+        """The branch (+ fusion) path on flat features ``[S, D]`` with views ``[S]`` (-1: canonical)."""
+        cfg = self.config
+        novel = views < 0
+        d = flat.shape[-1]
+        fusion = self.fusion_active()
         if not fusion and not bool(novel.any()):
             # branches alone: each sample needs only its own view's branch
-            return {"rgb": self.base.decode_color(self.branches.forward_own(flat, views)).reshape(lead + (3,))}
+            return {"rgb": self.base.decode_color(self.branches.forward_own(flat, views))}
         tokens = self.branches.forward_all(flat)  # [S, n, D]
         alpha = None
         if fusion:
@@ -180,13 +209,13 @@ class ViewAdaptiveField(Field):
         own = tokens.gather(1, views.clamp_min(0)[:, None, None].expand(-1, 1, d)).squeeze(1)
         canonical = flat if cfg.canonical == "shared" else tokens.mean(1)
         feature = torch.where(novel[:, None], canonical, own)
-        out = {"rgb": self.base.decode_color(feature).reshape(lead + (3,))}
+        out = {"rgb": self.base.decode_color(feature)}
         if fusion and self.training:
             if cfg.entropy_weight > 0:
-                out["va_entropy"] = attention_entropy(alpha).reshape(lead)
+                out["va_entropy"] = attention_entropy(alpha)
             if cfg.consistency_weight > 0:
-                out["va_consistency"] = feature_consistency(tokens).reshape(lead)
-            self._last_alpha = alpha.detach().mean(1)  # [S, n, n], averaged over heads
+                out["va_consistency"] = feature_consistency(tokens)
+            self._last_alpha = (alpha.detach().mean(1), None if weights is None else weights.detach())
         return out
 
     # -- losses and diagnostics -------------------------------------------------------------------
@@ -206,14 +235,14 @@ class ViewAdaptiveField(Field):
     def _accumulate_attention(self, weights: Optional[torch.Tensor]) -> None:
         """Running sum of the attention matrix over training samples, weighted by rendering weight
         (so it reflects samples on the surface, not in empty space)."""
-        alpha, self._last_alpha = self._last_alpha, None
-        if alpha is None:
+        last, self._last_alpha = self._last_alpha, None
+        if last is None:
             return
-        if weights is not None and weights.numel() == alpha.shape[0]:
-            w = weights.detach().reshape(-1, 1, 1).to(alpha.dtype)
-        else:
-            w = torch.ones_like(alpha[:, :1, :1])
-        self.attention_sum += (alpha * w).sum(0)
+        alpha, sample_weights = last
+        if sample_weights is None and weights is not None and weights.numel() == alpha.shape[0]:
+            sample_weights = weights.detach().reshape(-1)
+        w = torch.ones_like(alpha[:, 0, 0]) if sample_weights is None else sample_weights.to(alpha.dtype)
+        self.attention_sum += (alpha * w[:, None, None]).sum(0)
         self.attention_mass += w.sum()
 
     def attention_matrix(self) -> Optional[torch.Tensor]:

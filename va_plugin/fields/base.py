@@ -44,8 +44,11 @@ class Field(nn.Module):
         """RGB in [0, 1] ``[..., 3]`` from a feature ``[..., feature_dim]``."""
         raise NotImplementedError
 
-    def color(self, positions, directions, normals, geo_features, camera_indices=None) -> Dict[str, torch.Tensor]:
-        """RGB of samples; ``camera_indices`` (``[...]``, -1 for novel views) is ignored by plain fields."""
+    def color(self, positions, directions, normals, geo_features, camera_indices=None,
+              weights=None) -> Dict[str, torch.Tensor]:
+        """RGB of samples. ``camera_indices`` (``[...]``, -1 for novel views) and the samples' detached
+        rendering ``weights`` (``[...]``, None where unknown, e.g. mesh colours) are ignored by plain
+        fields; a wrapper may use the weights to spend work only where a sample is visible."""
         return {"rgb": self.decode_color(self.color_features(positions, directions, normals, geo_features))}
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:

@@ -141,7 +141,7 @@ class NeuSModel(Model):
         normals = torch.nn.functional.normalize(gradients, dim=-1, eps=1e-6)
         camera_indices = samples.camera_indices[:, None].expand(alpha.shape)
         color = self.field.color(positions if self.training else positions.detach(), directions, normals,
-                                 geo_features, camera_indices)
+                                 geo_features, camera_indices, weights=weights.detach())
         outputs = {
             "rgb": renderers.render_rgb(weights, color["rgb"], self.background),
             "accumulation": weights.sum(-1, keepdim=True),

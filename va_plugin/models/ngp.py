@@ -148,9 +148,10 @@ class NGPModel(Model):
         ray_index = keep.nonzero()[:, 0]
         directions = ray_bundle.directions[ray_index]
         camera_indices = ray_bundle.camera_indices[ray_index]
-        color = self.field.color(positions, directions, torch.zeros_like(positions), geo_features, camera_indices)
         alpha = renderers.alpha_from_density(scatter(trunc_exp(raw[..., 0]), keep), samples.deltas)
         weights = renderers.weights_from_alpha(alpha)
+        color = self.field.color(positions, directions, torch.zeros_like(positions), geo_features, camera_indices,
+                                 weights=weights.detach()[keep])
         if self.training:
             self.samples_per_ray = positions.shape[0] / max(len(ray_bundle), 1)
         outputs = {
