@@ -26,9 +26,9 @@ class Spy:
             self.positions.append(positions.detach().reshape(-1, 3))
             return geometry(positions)
 
-        def recording_color(positions, directions, normals, geo_features, camera_indices=None):
+        def recording_color(positions, directions, normals, geo_features, camera_indices=None, weights=None):
             self.color_calls.append((positions.shape, camera_indices))
-            return color(positions, directions, normals, geo_features, camera_indices)
+            return color(positions, directions, normals, geo_features, camera_indices, weights=weights)
 
         field.geometry, field.color = counting_geometry, recording_color
 
