@@ -6,6 +6,7 @@ METHODS = [
     "neus = method_configs.neus:neus",
     "ngp = method_configs.ngp:ngp",
     "va-neus = method_configs.va_neus:va_neus",
+    "va-ngp = method_configs.va_ngp:va_ngp",
 ]
 
 setup(

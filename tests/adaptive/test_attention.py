@@ -1,0 +1,74 @@
+import math
+
+import pytest
+import torch
+
+from va_plugin.adaptive.attention import LOGIT_BOUND, ViewAttention, reference_attention
+from va_plugin.adaptive.branches import ViewBranches
+
+
+def _randomised(module: ViewAttention, seed: int = 0) -> ViewAttention:
+    """The output projection starts at zero; give it values so the fused features depend on it."""
+    gen = torch.Generator().manual_seed(seed)
+    with torch.no_grad():
+        module.out.weight.copy_(torch.randn(module.out.weight.shape, generator=gen) * 0.1)
+        module.out.bias.copy_(torch.randn(module.out.bias.shape, generator=gen) * 0.1)
+    return module
+
+
+@pytest.mark.parametrize("n_views,heads", [(4, 4), (3, 1), (16, 2)])
+def test_attention_matches_the_loop_reference_and_rows_sum_to_one(n_views, heads):
+    torch.manual_seed(0)
+    module = _randomised(ViewAttention(feature_dim=12, attention_dim=8 * heads, n_heads=heads))
+    tokens = torch.randn(5, n_views, 12)
+    fused, alpha = module(tokens)
+    ref_fused, ref_alpha = reference_attention(module, tokens)
+    assert alpha.shape == (5, heads, n_views, n_views)
+    torch.testing.assert_close(alpha.sum(-1), torch.ones(5, heads, n_views))
+    torch.testing.assert_close(alpha, ref_alpha, atol=1e-6, rtol=1e-5)
+    torch.testing.assert_close(fused, ref_fused, atol=1e-5, rtol=1e-5)
+
+
+def test_fresh_attention_is_the_identity_and_uniform_for_equal_tokens():
+    module = ViewAttention(feature_dim=6, attention_dim=8, n_heads=2)
+    tokens = torch.randn(3, 1, 6).expand(3, 4, 6).contiguous()
+    fused, alpha = module(tokens)
+    assert torch.equal(fused, tokens)  # zero-initialised output projection: phase 3 starts where phase 2 ended
+    torch.testing.assert_close(alpha, torch.full_like(alpha, 0.25))
+
+
+def test_huge_features_give_finite_attention_and_gradients():
+    module = _randomised(ViewAttention(feature_dim=4, attention_dim=4, n_heads=1))
+    tokens = (torch.randn(2, 3, 4) * 1e6).requires_grad_(True)
+    fused, alpha = module(tokens)
+    (fused.sum() + alpha.sum()).backward()
+    assert torch.isfinite(alpha).all() and torch.isfinite(tokens.grad).all()
+    assert LOGIT_BOUND < math.log(torch.finfo(torch.float32).max)
+
+
+def test_branches_batched_equal_per_view_loop_and_own_equals_gathered_all():
+    torch.manual_seed(1)
+    branches = ViewBranches(n_views=3, feature_dim=5, width=7, n_layers=3)
+    with torch.no_grad():  # the last layer starts at zero; make it non-trivial
+        branches.weights[-1].normal_()
+        branches.biases[-1].normal_()
+    features = torch.randn(10, 5)
+    views = torch.tensor([2, 0, 0, 1, 2, 2, 1, 0, 2, 1])
+    everything = branches.forward_all(features)
+    for i in range(3):  # plain per-view MLP
+        x = features
+        for k, (w, b) in enumerate(zip(branches.weights, branches.biases)):
+            x = x @ w[i] + b[i]
+            if k < 2:
+                x = torch.relu(x)
+        torch.testing.assert_close(everything[:, i], features + x)
+    own = branches.forward_own(features, views)
+    torch.testing.assert_close(own, everything[torch.arange(10), views])
+
+
+def test_fresh_branches_are_the_identity():
+    branches = ViewBranches(n_views=4, feature_dim=6, width=8, n_layers=3)
+    features = torch.randn(7, 6)
+    assert torch.equal(branches.forward_all(features), features[:, None].expand(7, 4, 6))
+    assert torch.equal(branches.forward_own(features, torch.tensor([0, 1, 2, 3, 0, 1, 2])), features)
+    assert branches.forward_own(features[:0], torch.zeros(0, dtype=torch.long)).shape == (0, 6)

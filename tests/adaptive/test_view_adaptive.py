@@ -1,0 +1,179 @@
+"""The view-adaptive wrapper on both backbones: phases, gradients, learning rates, canonical path,
+checkpoints and the consistent-scene skip."""
+
+import json
+
+import pytest
+import torch
+
+from conftest import tiny_config
+from va_plugin.adaptive.field import BRANCHES, FUSION, PRETRAIN, ViewAdaptiveField, ViewAdaptiveFieldConfig
+from va_plugin.adaptive.phases import RESIDUALS_FILE, inputs_look_consistent, phase_at
+from va_plugin.errors import ConfigError
+from va_plugin.rays import RayBundle
+
+METHODS = ["va-neus", "va-ngp"]
+FORCE = {"pipeline.model.field.skip_consistent_scenes": "false"}
+
+
+def _trainer(method, scene, out, steps=9, **overrides):
+    return tiny_config(method, scene, out, steps=steps, **{**FORCE, **overrides}).setup()
+
+
+def _run_step(trainer):
+    trainer._run_callbacks("before_step")
+    trainer._step()
+    trainer.step += 1
+
+
+def test_phase_boundaries_are_fractions_of_the_budget():
+    assert [phase_at(s, 9, 1 / 3, 1 / 3) for s in range(9)] == [1, 1, 1, 2, 2, 2, 3, 3, 3]
+    assert [phase_at(s, 4, 0.0, 0.0) for s in range(4)] == [3, 3, 3, 3]
+    assert [phase_at(s, 4, 0.5, 0.5) for s in range(4)] == [1, 1, 2, 2]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_each_phase_trains_the_intended_parameters_at_the_intended_rates(method, tiny_scene, tmp_path):
+    trainer = _trainer(method, tiny_scene, tmp_path / "run")
+    field = trainer.model.field
+    assert isinstance(field, ViewAdaptiveField) and field.num_views == 4
+    shared = {id(p) for p in field.base.parameters()}
+    branch = {id(p) for p in field.branches.parameters()}
+    fusion = {id(p) for p in field.attention.parameters()}
+
+    def with_grad(ids):
+        return {id(p) for p in trainer.model.parameters() if id(p) in ids and p.grad is not None}
+
+    for step in range(9):
+        _run_step(trainer)
+        phase = field.current_phase
+        assert phase == (PRETRAIN, BRANCHES, FUSION)[step // 3]
+        assert with_grad(shared), f"step {step}: the shared field got no gradient"
+        assert (with_grad(branch) == branch) == (phase >= BRANCHES), f"step {step}, phase {phase}: branches"
+        assert (with_grad(fusion) == fusion) == (phase >= FUSION), f"step {step}, phase {phase}: attention"
+        if phase >= FUSION:  # the regularizers are on
+            assert trainer.model.config.field.entropy_weight > 0
+        factor = trainer.config.scheduler.factor(step, trainer.config.max_steps)
+        lrs = {g["name"]: g["lr"] for g in trainer.optimizer.param_groups}
+        base_lr = {name: trainer.config.optimizers[name].lr * factor for name in lrs}
+        shared_scale = 1.0 if phase == PRETRAIN else field.config.shared_lr_scale
+        assert lrs["fields"] == pytest.approx(base_lr["fields"] * shared_scale)
+        assert lrs["adaptive"] == pytest.approx(base_lr["adaptive"])
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+    events = [json.loads(line) for line in (tmp_path / "run" / "metrics.jsonl").read_text().splitlines()]
+    assert [e["phase"] for e in events if "event" in e] == [BRANCHES, FUSION]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_canonical_path_is_deterministic_and_ignores_the_view(method, tiny_scene, tmp_path):
+    trainer = _trainer(method, tiny_scene, tmp_path / "run", steps=3,
+                       **{"pipeline.model.field.pretrain_fraction": 0.0, "pipeline.model.field.branch_fraction": 0.0})
+    for _ in range(3):
+        _run_step(trainer)
+    field, model = trainer.model.field, trainer.model
+    with torch.no_grad():  # views now differ: make the branches visibly different
+        for w in field.branches.weights:
+            w.add_(torch.randn_like(w) * 0.3)
+    model.eval()
+    dm = trainer.pipeline.datamanager
+    rows, cols = torch.meshgrid(torch.arange(0, 24, 3), torch.arange(0, 24, 3), indexing="ij")
+    rows, cols = rows.reshape(-1), cols.reshape(-1)
+    origins, directions = dm.cameras.generate_rays(torch.zeros_like(rows), rows, cols)
+    renders = {}
+    for label, index in (("novel", -1), ("view0", 0), ("view2", 2)):
+        rays = RayBundle(origins, directions, torch.full_like(rows, index))
+        renders[label] = model.render_rays(rays, keys=("rgb",))["rgb"]
+    again = model.render_rays(RayBundle(origins, directions, torch.full_like(rows, -1)), keys=("rgb",))["rgb"]
+    assert torch.equal(renders["novel"], again)
+    assert not torch.allclose(renders["view0"], renders["view2"]), "branches should change a view's render"
+    # the canonical colour of a point does not depend on which camera index a caller passes for "novel"
+    points = torch.rand(64, 3) - 0.5
+    normals = torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
+    colors = model.surface_color(points, normals)
+    torch.testing.assert_close(colors, model.surface_color(points, normals))
+
+
+def test_sample_culling_matches_the_full_adaptive_path(tiny_scene, tmp_path):
+    trainer = _trainer("va-neus", tiny_scene, tmp_path / "run", steps=2,
+                       **{"pipeline.model.field.pretrain_fraction": 0.0, "pipeline.model.field.branch_fraction": 0.0})
+    _run_step(trainer)
+    field = trainer.model.field
+    with torch.no_grad():
+        for w in list(field.branches.weights) + [field.attention.out.weight]:
+            w.add_(torch.randn_like(w) * 0.3)
+    d = field.feature_dim
+    positions = torch.rand(2, 5, 3) - 0.5
+    normals = torch.nn.functional.normalize(torch.randn(2, 5, 3), dim=-1)
+    directions = -normals
+    _, geo = field.geometry(positions)
+    views = torch.tensor([[0, 0, 0, 0, 0], [-1, -1, -1, -1, -1]])
+    weights = torch.tensor([[0.0, 0.5, 1e-5, 0.3, 0.2], [0.9, 0.0, 0.0, 0.05, 0.05]])
+    field.eval()
+    full = field.color(positions, directions, normals, geo, views)["rgb"]
+    culled = field.color(positions, directions, normals, geo, views, weights=weights)["rgb"]
+    plain = field.decode_color(field.color_features(positions, directions, normals, geo))
+    heavy = weights > field.config.min_sample_weight
+    torch.testing.assert_close(culled[heavy], full[heavy])
+    torch.testing.assert_close(culled[~heavy], plain[~heavy])
+    assert not torch.allclose(full[heavy], plain[heavy]) and d > 0
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_phase_survives_a_checkpoint(method, tiny_scene, tmp_path):
+    trainer = _trainer(method, tiny_scene, tmp_path / "run", steps=6, checkpoint_every=3)
+    trainer.train()
+    assert trainer.model.field.current_phase == FUSION
+    again = _trainer(method, tiny_scene, tmp_path / "run", steps=6, checkpoint_every=3)
+    assert again.model.field.current_phase == PRETRAIN
+    assert again.resume() and again.model.field.current_phase == FUSION
+    assert again.lr_multipliers["fields"] == pytest.approx(trainer.model.field.config.shared_lr_scale)
+
+
+def test_inputs_look_consistent_thresholds_the_spread():
+    views = [{"psnr": 30.0, "psnr_foreground": 25.0}, {"psnr": 29.5, "psnr_foreground": 24.4}]
+    assert inputs_look_consistent(views, 1.0)
+    assert not inputs_look_consistent(views, 0.5)  # foreground PSNR decides: spread 0.6 dB
+    assert inputs_look_consistent([{"psnr": 20.0}, {"psnr": 20.9}], 1.0)
+
+
+def test_a_consistent_scene_skips_the_adaptive_phases(tiny_scene, tmp_path):
+    # a huge threshold: whatever the residuals, the scene counts as consistent
+    trainer = tiny_config("va-neus", tiny_scene, tmp_path / "run", steps=3,
+                          **{"pipeline.model.field.consistent_residual_db": 1000.0}).setup()
+    trainer.train()
+    field = trainer.model.field
+    assert field.current_phase == PRETRAIN and bool(field.skipped)
+    assert all(p.grad is None for p in field.branches.parameters())
+    record = json.loads((tmp_path / "run" / RESIDUALS_FILE).read_text())
+    assert record["consistent"] and len(record["views"]) == 4
+    assert trainer.lr_multipliers["fields"] == 1.0
+    # a threshold of 0 dB: real inputs never agree that well, so the adaptive phases run
+    forced = tiny_config("va-neus", tiny_scene, tmp_path / "run2", steps=3,
+                         **{"pipeline.model.field.consistent_residual_db": 0.0}).setup()
+    forced.train()
+    assert forced.model.field.current_phase == FUSION and not bool(forced.model.field.skipped)
+
+
+@pytest.mark.parametrize("options,match", [
+    ({"branches": False, "fusion": True}, "fusion needs"),
+    ({"canonical": "median"}, "canonical"),
+    ({"pretrain_fraction": 0.8, "branch_fraction": 0.5}, "sum to at most 1"),
+    ({"attention_dim": 10, "attention_heads": 4}, "multiple"),
+    ({"min_sample_weight": -1.0}, ">= 0"),
+])
+def test_bad_options_are_refused_with_a_message(options, match):
+    with pytest.raises(ConfigError, match=match):
+        ViewAdaptiveFieldConfig(**options).validate()
+
+
+@pytest.mark.parametrize("switches", [{"fusion": "false"}, {"branches": "false", "fusion": "false"},
+                                      {"entropy_weight": 0.0, "consistency_weight": 0.0}])
+def test_ablation_switches_train(switches, tiny_scene, tmp_path):
+    overrides = {f"pipeline.model.field.{k}": v for k, v in switches.items()}
+    trainer = _trainer("va-neus", tiny_scene, tmp_path / "run", steps=6, **overrides)
+    record = trainer.train()
+    field = trainer.model.field
+    assert (field.attention is None) == (switches.get("fusion") == "false")
+    assert (field.branches is None) == (switches.get("branches") == "false")
+    assert ("loss_entropy" in record) == (field.attention is not None and field.config.entropy_weight > 0)
+    assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
