@@ -73,6 +73,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
     consistent_residual_db: float = 1.0
     """Threshold of that test: the largest per-view PSNR shortfall below the best view, in dB."""
+    diagnostics_scale: float = 0.5
+    """At the end of training, write the attention heat map and the per-view inconsistency maps to the
+    run folder, rendered at this fraction of the input resolution (0: don't)."""
     needs_num_views: bool = field(default=True, repr=False)
     """Tells the model to pass the number of training views (not an option)."""
 
@@ -85,9 +88,10 @@ class ViewAdaptiveFieldConfig(FieldConfig):
                 and self.pretrain_fraction + self.branch_fraction <= 1.0):
             raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
                               f"{self.pretrain_fraction} and {self.branch_fraction}")
-        if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale, self.min_sample_weight) < 0:
-            raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale and min_sample_weight "
-                              "must be >= 0")
+        if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale, self.min_sample_weight,
+               self.diagnostics_scale) < 0:
+            raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale, min_sample_weight and "
+                              "diagnostics_scale must be >= 0")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:
@@ -262,9 +266,12 @@ class ViewAdaptiveField(Field):
         return groups
 
     def training_callbacks(self) -> list:
-        from va_plugin.adaptive.phases import phase_callback
+        from va_plugin.adaptive.phases import diagnostics_callback, phase_callback
 
-        return [phase_callback(self)]
+        callbacks = [phase_callback(self)]
+        if self.config.diagnostics_scale > 0:
+            callbacks.append(diagnostics_callback(self))
+        return callbacks
 
     def diagnostics(self) -> Dict[str, float]:
         return {"phase": float(self.current_phase)}

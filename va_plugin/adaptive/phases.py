@@ -20,7 +20,7 @@ import torch
 from tqdm import tqdm
 
 from va_plugin.adaptive.field import BRANCHES, FUSION, PHASE_NAMES, PRETRAIN, ViewAdaptiveField
-from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback
+from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
 from va_plugin.rays import RayBundle
 
 RESIDUALS_FILE = "view_residuals.json"
@@ -98,6 +98,22 @@ def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
         trainer.lr_multipliers["fields"] = cfg.shared_lr_scale if wanted >= BRANCHES else 1.0
 
     return TrainingCallback(switch, BEFORE_STEP)
+
+
+def diagnostics_callback(field: ViewAdaptiveField) -> TrainingCallback:
+    """After the last step, the attention heat map and the inconsistency maps go to the run folder."""
+
+    def write(step: int, trainer) -> None:
+        if step + 1 != trainer.config.max_steps:
+            return
+        from va_plugin.adaptive.diagnostics import write_diagnostics
+
+        written = write_diagnostics(trainer.pipeline, trainer.run_dir, field.config.diagnostics_scale,
+                                    progress=trainer.config.progress)
+        if written:
+            _announce(trainer, step, "diagnostics written: " + ", ".join(Path(p).name for p in written))
+
+    return TrainingCallback(write, AFTER_STEP)
 
 
 def _decide_skip(field: ViewAdaptiveField, trainer, step: int) -> bool:

@@ -1,4 +1,4 @@
-"""``va-export mesh|render --load-dir RUN``: meshes and renders of a trained run."""
+"""``va-export mesh|render|diagnostics --load-dir RUN``: meshes and renders of a trained run."""
 
 from __future__ import annotations
 
@@ -26,7 +26,11 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--max-views", type=int, default=None, help="render at most this many held-out views")
     render.add_argument("--frames", type=int, default=24, help="turntable frames")
     render.add_argument("--turntable-resolution", type=int, default=128, help="turntable image size")
-    for p in (mesh, render):
+    diag = sub.add_parser("diagnostics", help="view-adaptive runs: attention heat map and per-view inconsistency maps")
+    diag.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
+    diag.add_argument("--output-dir", type=Path, default=None, help="default RUN")
+    diag.add_argument("--scale", type=float, default=0.5, help="resolution factor of the inconsistency maps")
+    for p in (mesh, render, diag):
         p.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
     return parser
 
@@ -46,6 +50,16 @@ def main(argv: Optional[List[str]] = None) -> int:
         mesh = extract_mesh(pipeline.model, resolution=args.resolution, largest_component=args.largest_component)
         write_mesh(mesh, output)
         print(f"mesh with {len(mesh.vertices)} vertices and {len(mesh.faces)} faces written to {output}")
+        return 0
+    if args.what == "diagnostics":
+        from va_plugin.adaptive.diagnostics import write_diagnostics
+
+        out_dir = args.output_dir if args.output_dir is not None else args.load_dir
+        written = write_diagnostics(pipeline, out_dir, scale=args.scale, progress=True)
+        if not written:
+            raise ConfigError("nothing to show: the run is not view-adaptive, or its adaptive phases never ran "
+                              "(see view_residuals.json in the run folder)")
+        print("wrote " + ", ".join(str(p) for p in written))
         return 0
     from va_plugin.export.render import render_test_views, render_turntable
 

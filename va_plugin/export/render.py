@@ -15,12 +15,13 @@ from va_plugin.data.images import write_image
 from va_plugin.rays import RayBundle
 
 
-def render_view(model, cameras: Cameras, index: int) -> np.ndarray:
-    """RGB ``[H, W, 3]`` float of one camera, rendered with the canonical (novel-view) path."""
+def render_view(model, cameras: Cameras, index: int, as_view: int = -1) -> np.ndarray:
+    """RGB ``[H, W, 3]`` float of one camera, rendered with the canonical (novel-view) path, or with
+    training view ``as_view``'s own path (its branch, for view-adaptive models) when ``as_view >= 0``."""
     cameras = cameras.to(next(model.parameters()).device)
     views, rows, cols = cameras.pixel_grid(index)
     origins, directions = cameras.generate_rays(views, rows, cols)
-    rays = RayBundle(origins, directions, torch.full_like(views, -1))
+    rays = RayBundle(origins, directions, torch.full_like(views, as_view))
     rgb = model.render_rays(rays, keys=("rgb",))["rgb"]
     return rgb.reshape(cameras.height, cameras.width, 3).cpu().numpy()
 

@@ -1,0 +1,56 @@
+import json
+
+import numpy as np
+import pytest
+
+from conftest import tiny_config
+from va_plugin.adaptive.diagnostics import attention_picture, overlap_scores
+from va_plugin.cli.export import main as export_main
+from va_plugin.data.images import read_image
+from va_plugin.data.scenes.builder import build_procedural_scene
+
+
+def test_overlap_scores_against_hand_values():
+    injected = np.zeros((10, 10))
+    injected[:2] = 0.5  # 20 perturbed pixels: chance 0.2
+    perfect = injected + 0.01
+    scores = overlap_scores(perfect, injected)
+    assert scores["chance"] == pytest.approx(0.2)
+    assert scores["precision_top10"] == pytest.approx(1.0)
+    assert scores["pearson"] == pytest.approx(1.0)
+    wrong = np.zeros((10, 10))
+    wrong[5:7] = 1.0
+    assert overlap_scores(wrong, injected)["precision_top10"] == 0.0
+    assert overlap_scores(np.zeros((10, 10)), injected)["pearson"] is None
+
+
+def test_attention_picture_is_an_image_of_the_matrix():
+    picture = attention_picture(np.array([[0.7, 0.3], [0.1, 0.9]]), cell=32)
+    assert picture.dtype == np.uint8 and picture.shape == (2 * 32 + 28, 2 * 32 + 28, 3)
+
+
+def test_a_run_writes_attention_and_inconsistency_maps(tmp_path_factory, tmp_path):
+    scene = build_procedural_scene(tmp_path_factory.mktemp("l2"), "mug", n_views=4, resolution=16, level=2)
+    trainer = tiny_config("va-neus", scene, tmp_path / "run", steps=6, **{
+        "pipeline.model.field.skip_consistent_scenes": "false", "pipeline.model.field.diagnostics_scale": 1.0,
+        "pipeline.model.field.min_sample_weight": 0.0}).setup()
+    trainer.train()
+    run = tmp_path / "run"
+    attention = json.loads((run / "attention.json").read_text())
+    matrix = np.array(attention["rows_query_view_cols_key_view"])
+    assert matrix.shape == (4, 4) and np.allclose(matrix.sum(1), 1.0, atol=1e-3)
+    record = json.loads((run / "inconsistency.json").read_text())
+    assert len(record["views"]) == 4
+    assert record["views"][0]["injected_mean"] == 0.0  # the builder keeps view 0 clean
+    assert all(v["injected_mean"] > 0 for v in record["views"][1:])
+    assert read_image(run / "inconsistency.png").shape[:2] == (4 * 16, 4 * 16)
+    # the same pictures again from the command line, elsewhere
+    assert export_main(["diagnostics", "--load-dir", str(run), "--output-dir", str(tmp_path / "again"),
+                        "--scale", "0.5"]) == 0
+    assert (tmp_path / "again" / "attention.png").exists()
+
+
+def test_diagnostics_of_a_plain_run_is_a_clear_error(tiny_scene, tmp_path, capsys):
+    tiny_config("neus", tiny_scene, tmp_path / "run", steps=1).setup().train()
+    assert export_main(["diagnostics", "--load-dir", str(tmp_path / "run")]) == 2
+    assert "not view-adaptive" in capsys.readouterr().err
