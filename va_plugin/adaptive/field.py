@@ -124,7 +124,9 @@ class ViewAdaptiveField(Field):
         self.register_load_state_dict_post_hook(lambda module, _: module._refresh_phase())
         self.register_buffer("attention_sum", torch.zeros(num_train_views, num_train_views))
         self.register_buffer("attention_mass", torch.zeros(()))
-        self._last_alpha: Optional[torch.Tensor] = None
+        self._last_alpha: Optional[tuple] = None
+        self.adaptive_share = 0.0
+        """Share of the last training batch's samples that took the branch/attention path."""
 
     # -- phases (set by the trainer's callback) ---------------------------------------------------
     def set_phase(self, phase: int) -> None:
@@ -190,6 +192,8 @@ class ViewAdaptiveField(Field):
         if cfg.canonical == "shared":
             active &= views >= 0
         index = active.nonzero().squeeze(-1)
+        if self.training:
+            self.adaptive_share = index.numel() / max(flat.shape[0], 1)
         sub = self._adaptive(flat[index], views[index], weights.reshape(-1)[index])
         out = {"rgb": self.base.decode_color(flat).index_copy(0, index, sub.pop("rgb"))}
         for key, value in sub.items():  # per-sample regularizers: 0 where not evaluated
@@ -274,4 +278,7 @@ class ViewAdaptiveField(Field):
         return callbacks
 
     def diagnostics(self) -> Dict[str, float]:
-        return {"phase": float(self.current_phase)}
+        out = {"phase": float(self.current_phase)}
+        if self.branches_active():
+            out["adaptive_share"] = round(self.adaptive_share, 4)
+        return out

@@ -9,7 +9,8 @@ from typing import List, Optional
 
 from va_plugin.cli.common import EXIT_INTERRUPTED, cache_dir, friendly_errors
 from va_plugin.config import apply_override
-from va_plugin.data.dataparsers import resolve_dataparser
+from va_plugin.data.datamanager import MASK_PICTURE
+from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
 from va_plugin.errors import ConfigError
 from va_plugin.registry import discover_methods
 
@@ -23,7 +24,16 @@ def build_parser(methods) -> argparse.ArgumentParser:
                "is generated and used.")
     parser.add_argument("method", help="one of the methods listed above")
     parser.add_argument("--data", type=Path, default=None, help="scene folder or generator output")
-    parser.add_argument("--data-format", default="auto", help="input format (auto detects it)")
+    parser.add_argument("--data-format", default="auto", metavar="{auto," + ",".join(FORMATS) + "}",
+                        help="input format (default auto: detected from the input)")
+    parser.add_argument("--views", type=int, default=None,
+                        help="SyncDreamer: training views of the 16, uniform in azimuth (4, 8, 12 or 16; default 4)")
+    parser.add_argument("--elevation", type=float, default=None,
+                        help="SyncDreamer: camera elevation in degrees (default 30)")
+    parser.add_argument("--rig", default=None, help="Zero123++: model version, v1.1 or v1.2 (default v1.2)")
+    parser.add_argument("--masks", type=Path, default=None,
+                        help="generator inputs: mask folder (one image per view) or one mask image in the "
+                             "input's layout, instead of the colour key")
     parser.add_argument("--output-dir", type=Path, default=None, help="run folder (default outputs/METHOD)")
     parser.add_argument("--preset", default=None, help="a named variant of the method (see its presets)")
     parser.add_argument("--steps", type=int, default=None, help="step budget (overrides the method's)")
@@ -37,6 +47,22 @@ def build_parser(methods) -> argparse.ArgumentParser:
     parser.add_argument("--default-scene-resolution", type=int, default=256,
                         help="image size of the embedded default scene")
     return parser
+
+
+# flag -> (dataparser option, the formats that have it)
+GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"), "elevation": ("elevation_deg", "syncdreamer"),
+                     "rig": ("rig", "zero123pp"), "masks": ("masks", "syncdreamer, zero123pp and wonder3d")}
+
+
+def apply_generator_options(parser_config, args: argparse.Namespace) -> None:
+    """Copy the generator flags that were given onto the dataparser config, refusing ones it lacks."""
+    for flag, (option, formats) in GENERATOR_OPTIONS.items():
+        value = getattr(args, flag)
+        if value is None:
+            continue
+        if not hasattr(parser_config, option):
+            raise ConfigError(f"--{flag} applies to {formats} inputs only")
+        setattr(parser_config, option, value)
 
 
 def make_config(args: argparse.Namespace, methods):
@@ -53,6 +79,7 @@ def make_config(args: argparse.Namespace, methods):
                                     resolution=args.default_scene_resolution)
     config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), args.data_format,
                                                                 config.pipeline.datamanager.dataparser)
+    apply_generator_options(config.pipeline.datamanager.dataparser, args)
     config.output_dir = args.output_dir if args.output_dir is not None else Path("outputs") / args.method
     if args.steps is not None:
         config.max_steps = args.steps
@@ -64,6 +91,15 @@ def make_config(args: argparse.Namespace, methods):
     for assignment in args.overrides:
         apply_override(config, assignment)
     return config
+
+
+def describe_inputs(trainer, run_dir: Path) -> None:
+    """One line on stderr about generator inputs: format, views and where the masks came from."""
+    meta = trainer.pipeline.datamanager.train.metadata
+    if "mask_source" in meta:
+        views = len(trainer.pipeline.datamanager.train)
+        print(f"{meta['format']} input: {views} training views, masks from the {meta['mask_source']} "
+              f"(check {run_dir / MASK_PICTURE})", file=sys.stderr)
 
 
 @friendly_errors
@@ -78,6 +114,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         raise ConfigError(f"{run_dir} already holds checkpoints; pass --resume to continue, "
                           "or choose another --output-dir")
     trainer = config.setup()
+    describe_inputs(trainer, run_dir)
     if args.resume and trainer.resume():
         print(f"resuming {config.method_name} from step {trainer.step}", file=sys.stderr)
     try:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Dict, Iterator, Optional, Tuple, Type
 
 import torch
@@ -10,8 +11,11 @@ import torch
 from va_plugin.config import InstantiateConfig
 from va_plugin.data.dataparsers.base import DataParserConfig, DataparserOutputs
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.data.foreground import write_mask_picture
 from va_plugin.errors import DataError
 from va_plugin.rays import RayBundle
+
+MASK_PICTURE = "masks.png"
 
 
 @dataclass
@@ -108,6 +112,13 @@ class DataManager:
         for i in range(len(self.test)):
             mask = None if self.test.masks is None else self.test.masks[i]
             yield i, self.image_rays(self.test, i, camera_index=-1), self.test.images[i], mask
+
+    def save_mask_picture(self, run_dir: Path) -> Optional[Path]:
+        """Write ``RUN/masks.png`` (training views above their masks) when the dataparser derived the masks
+        from the inputs (generator outputs), so a user can check them; None otherwise."""
+        if self.train.masks is None or "mask_source" not in self.train.metadata:
+            return None
+        return write_mask_picture(Path(run_dir) / MASK_PICTURE, self.train.images.numpy(), self.train.masks.numpy())
 
     def state_dict(self) -> Dict[str, torch.Tensor]:
         return {"generator": self.generator.get_state()}

@@ -248,6 +248,8 @@ class Trainer:
         """Train to ``max_steps`` (from the current step); returns the final log record."""
         cfg = self.config
         self._write_config()
+        if self.step == 0:
+            self.pipeline.datamanager.save_mask_picture(self.run_dir)
         bar = tqdm(total=cfg.max_steps, initial=self.step, disable=not cfg.progress, dynamic_ncols=True,
                    desc=cfg.method_name, leave=True)
         record: Dict[str, Any] = {}

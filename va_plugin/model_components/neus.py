@@ -56,3 +56,27 @@ def section_alpha(sdf_edges: torch.Tensor, inv_s: float) -> torch.Tensor:
     prev_cdf = torch.sigmoid(sdf_edges[:, :-1] * inv_s)
     next_cdf = torch.sigmoid(sdf_edges[:, 1:] * inv_s)
     return ((prev_cdf - next_cdf + 1e-5) / (prev_cdf + 1e-5)).clamp(0.0, 1.0)
+
+
+def sdf_band(coarse_edges: torch.Tensor, coarse_sdf: torch.Tensor, t_mid: torch.Tensor, inv_s: torch.Tensor,
+             margin: float) -> torch.Tensor:
+    """Which samples may lie near the surface, from the SDF known at the coarse edges (no gradients).
+
+    A sample at ``t_mid`` inside the coarse section ``[e_j, e_j+1]`` is outside the band when the SDF
+    stays above ``margin / inv_s`` over that whole section. With ``|grad sdf| <= 1`` the SDF there is at
+    least ``min(sdf_j, sdf_j+1) - (e_j+1 - e_j)``; the full section length (not half) also covers the
+    ends of the sample's own section, where NeuS evaluates Phi. Outside the band alpha is below about
+    ``exp(-margin)``, so dropping those samples changes no rendered value measurably.
+
+    Args:
+        coarse_edges, coarse_sdf: ``[n_rays, m]`` sorted positions along each ray and their SDF.
+        t_mid: ``[n_rays, n]`` positions of the samples to test.
+        inv_s: scalar tensor (NeuS's sharpness).
+    Returns:
+        ``[n_rays, n]`` bool, True for samples to evaluate.
+    """
+    steps = coarse_edges[:, 1:] - coarse_edges[:, :-1]
+    lowest = torch.minimum(coarse_sdf[:, :-1], coarse_sdf[:, 1:]) - steps  # [n_rays, m - 1]
+    section = torch.searchsorted(coarse_edges.contiguous(), t_mid.contiguous(), right=True) - 1
+    section = section.clamp(0, steps.shape[1] - 1)
+    return lowest.gather(1, section) * inv_s < margin

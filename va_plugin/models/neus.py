@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Type
+from typing import Dict, List, Optional, Type
 
 import torch
 from torch import nn
@@ -11,7 +11,8 @@ from torch import nn
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
-from va_plugin.model_components.neus import SingleVariance, neus_alpha, section_alpha
+from va_plugin.model_components.neus import SingleVariance, neus_alpha, sdf_band, section_alpha
+from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo
 from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
@@ -35,7 +36,11 @@ class NeuSModelConfig(ModelConfig):
     A ray is skipped only when inv_s * (min coarse SDF - half a coarse step) > ``skip_margin``, so the
     alpha it would get is below exp(-margin)."""
     skip_margin: float = 12.0
-    """Safety margin of the empty-ray test, in units of 1/inv_s."""
+    """Safety margin of the empty-ray test (and of ``skip_far_samples``), in units of 1/inv_s."""
+    skip_far_samples: bool = False
+    """Evaluate with gradients only the samples that the coarse SDF says may lie within
+    ``skip_margin / inv_s`` of the surface, or inside it (see ``sdf_band``); the others get alpha 0
+    and no eikonal term. Off by default: see benchmarks/RESULTS.md (issue 4) for what it measured."""
     variance_init: float = 0.3
     """Initial v of inv_s = exp(10 v)."""
     eikonal_weight: float = 0.1
@@ -56,6 +61,10 @@ class NeuSModel(Model):
         if self.field.geometry_kind != "sdf":
             raise ValueError("NeuSModel needs a field whose geometry is an SDF")
         self.variance = SingleVariance(config.variance_init)
+        self.samples_per_ray = 0.0
+        """Samples per batch ray evaluated with gradients in the last training batch (skipped rays count 0)."""
+        self.probed_per_ray = 0.0
+        """SDF evaluations per batch ray of the gradient-free coarse and up-sampling passes, last training batch."""
 
     # -- schedules ------------------------------------------------------------------------------
     def cos_anneal_ratio(self) -> float:
@@ -70,7 +79,8 @@ class NeuSModel(Model):
         return groups
 
     def diagnostics(self) -> Dict[str, float]:
-        return {**super().diagnostics(), "inv_s": float(self.variance.inv_s().detach())}
+        return {**super().diagnostics(), "inv_s": float(self.variance.inv_s().detach()),
+                "samples_per_ray": round(self.samples_per_ray, 3), "probed_per_ray": round(self.probed_per_ray, 3)}
 
     # -- sampling -------------------------------------------------------------------------------
     @torch.no_grad()
@@ -114,40 +124,66 @@ class NeuSModel(Model):
                                                  self.scene.scene_radius)
         ray_bundle.nears, ray_bundle.fars = nears, fars
         edges, sdf_coarse, active = self._coarse(ray_bundle)
-        if bool(active.all()):
-            return self._render(ray_bundle, self._sample_edges(ray_bundle, edges, sdf_coarse))
         n_rays = len(ray_bundle)
-        index = active.nonzero().squeeze(-1)
-        if index.numel() == 0:
-            index = index.new_zeros(1)  # keep one ray so per-sample outputs (eikonal) stay well-formed
-        sub = ray_bundle[index]
-        inner = self._render(sub, self._sample_edges(sub, edges[index], sdf_coarse[index]))
-        return _scatter_rays(inner, index, n_rays, self.background)
+        if bool(active.all()):
+            index, sub = None, ray_bundle
+        else:
+            index = active.nonzero().squeeze(-1)
+            if index.numel() == 0:
+                index = index.new_zeros(1)  # keep one ray so per-sample outputs (eikonal) stay well-formed
+            sub, edges, sdf_coarse = ray_bundle[index], edges[index], sdf_coarse[index]
+        fine = self._sample_edges(sub, edges, sdf_coarse)
+        keep = None
+        if self.config.skip_far_samples:
+            t_mid = 0.5 * (fine[:, 1:] + fine[:, :-1])
+            keep = sdf_band(edges, sdf_coarse, t_mid, self.variance.inv_s().detach(), self.config.skip_margin)
+        inner = self._render(sub, fine, keep)
+        if self.training:
+            self.samples_per_ray = inner["weights"].numel() / max(n_rays, 1)
+            self.probed_per_ray = (edges.shape[1] * n_rays + self._upsample_probes() * len(sub)) / max(n_rays, 1)
+        return inner if index is None else _scatter_rays(inner, index, n_rays, self.background)
 
-    def _render(self, ray_bundle: RayBundle, edges: torch.Tensor) -> Dict[str, torch.Tensor]:
-        """Render rays that may hit the surface, given their section edges."""
+    def _upsample_probes(self) -> int:
+        """SDF evaluations per rendered ray of the up-sampling rounds (the last round's samples are
+        evaluated only by the rendering pass)."""
+        cfg = self.config
+        if cfg.n_importance <= 0 or cfg.up_sample_steps <= 0:
+            return 0
+        return (cfg.n_importance // cfg.up_sample_steps) * (cfg.up_sample_steps - 1)
+
+    def _render(self, ray_bundle: RayBundle, edges: torch.Tensor,
+                keep: Optional[torch.Tensor] = None) -> Dict[str, torch.Tensor]:
+        """Render rays that may hit the surface, given their section edges ``[n_rays, n + 1]``.
+
+        With ``keep`` (``[n_rays, n]`` bool) only those samples are evaluated, packed row-major as in
+        ``samples.positions[keep]``; the others get alpha 0. Per-sample outputs (weights, gradients,
+        inside) are then packed too."""
         samples = RaySamples.from_edges(ray_bundle, edges)
+        pack = (lambda t: t) if keep is None else (lambda t: t[keep])  # noqa: E731
+        unpack = (lambda t: t) if keep is None else (lambda t: scatter(t, keep))  # noqa: E731
         with torch.enable_grad():
-            positions = samples.positions.detach().requires_grad_(True)
+            positions = pack(samples.positions).detach().requires_grad_(True)
             sdf, geo_features = self.field.geometry(positions)
             gradients = torch.autograd.grad(sdf, positions, torch.ones_like(sdf),
                                             create_graph=self.training, retain_graph=True)[0]
         if not self.training:
             sdf, geo_features, gradients = sdf.detach(), geo_features.detach(), gradients.detach()
-        directions = samples.directions[:, None, :].expand_as(positions)
+        directions = pack(samples.directions[:, None, :].expand(samples.positions.shape))
         true_cos = (directions * gradients).sum(-1)
-        alpha = neus_alpha(sdf[..., 0], true_cos, samples.deltas, self.variance.inv_s(), self.cos_anneal_ratio())
+        alpha = unpack(neus_alpha(sdf[..., 0], true_cos, pack(samples.deltas), self.variance.inv_s(),
+                                  self.cos_anneal_ratio()))
         weights = renderers.weights_from_alpha(alpha)
+        sample_weights = pack(weights)
         normals = torch.nn.functional.normalize(gradients, dim=-1, eps=1e-6)
-        camera_indices = samples.camera_indices[:, None].expand(alpha.shape)
+        camera_indices = pack(samples.camera_indices[:, None].expand(alpha.shape))
         color = self.field.color(positions if self.training else positions.detach(), directions, normals,
-                                 geo_features, camera_indices, weights=weights.detach())
+                                 geo_features, camera_indices, weights=sample_weights.detach())
         outputs = {
-            "rgb": renderers.render_rgb(weights, color["rgb"], self.background),
+            "rgb": renderers.render_rgb(weights, unpack(color["rgb"]), self.background),
             "accumulation": weights.sum(-1, keepdim=True),
             "depth": renderers.render_depth(weights, samples.t_mid),
-            "normal": (weights[..., None] * normals).sum(-2),
-            "weights": weights,
+            "normal": (weights[..., None] * unpack(normals)).sum(-2),
+            "weights": sample_weights,
             "gradients": gradients,
             "inside": (positions.detach().norm(dim=-1) < self.scene.scene_radius),
         }

@@ -2,45 +2,105 @@
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, Optional
 
+import cv2
+
 from va_plugin.data.dataparsers.base import DataParserConfig
+from va_plugin.data.dataparsers.generators import (IMAGE_SUFFIXES, SYNCDREAMER_LAYOUT, WONDER3D_LAYOUT,
+                                                   ZERO123PP_LAYOUT, SyncDreamerDataParserConfig,
+                                                   Wonder3DDataParserConfig, Zero123ppDataParserConfig,
+                                                   wonder3d_file)
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.data.rigs import RIG_VIEWS, WONDER3D_VIEWS
 from va_plugin.errors import DataError
 
-# format name -> (config factory, detector)
-FORMATS: Dict[str, tuple[Callable[[], DataParserConfig], Callable[[Path], bool]]] = {
-    "transforms": (TransformsDataParserConfig,
-                   lambda p: (p.is_dir() and any((p / n).is_file() for n in
-                                                 ("transforms.json", "transforms_train.json")))
-                   or (p.is_file() and p.suffix == ".json")),
+
+@dataclass(frozen=True)
+class DataFormat:
+    """A format the dataparsers read: its config, how to recognise it and what it looks like."""
+
+    make_config: Callable[[], DataParserConfig]
+    detect: Callable[[Path], bool]
+    layout: str
+
+
+def image_shape(path: Path) -> Optional[tuple]:
+    """``(height, width)`` of an image file, or None when ``path`` is not a readable image."""
+    if not (path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES):
+        return None
+    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    return None if image is None else image.shape[:2]
+
+
+def _is_transforms(path: Path) -> bool:
+    if path.is_dir():
+        return any((path / n).is_file() for n in ("transforms.json", "transforms_train.json"))
+    return path.is_file() and path.suffix == ".json"
+
+
+def _is_strip(path: Path) -> bool:
+    shape = image_shape(path)
+    return shape is not None and shape[1] == RIG_VIEWS * shape[0]
+
+
+def _is_grid(path: Path) -> bool:
+    shape = image_shape(path)
+    return shape is not None and shape[0] * 2 == shape[1] * 3 and shape[1] % 2 == 0
+
+
+def _is_wonder3d(path: Path) -> bool:
+    if not path.is_dir():
+        return False
+    views = [v for v, _ in WONDER3D_VIEWS]
+    return any(all(wonder3d_file(folder, "rgb", v) for v in views) for folder in (path, path / "masked_colors"))
+
+
+COMMON_OPTIONS = ("background", "scene_radius", "image_scale")  # carried over from a method's dataparser
+FORMATS: Dict[str, DataFormat] = {
+    "transforms": DataFormat(TransformsDataParserConfig, _is_transforms,
+                             "a folder with transforms.json (or transforms_train.json), or that json file"),
+    "syncdreamer": DataFormat(SyncDreamerDataParserConfig, _is_strip, SYNCDREAMER_LAYOUT),
+    "zero123pp": DataFormat(Zero123ppDataParserConfig, _is_grid, ZERO123PP_LAYOUT),
+    "wonder3d": DataFormat(Wonder3DDataParserConfig, _is_wonder3d, WONDER3D_LAYOUT),
 }
+
+
+def format_list() -> str:
+    return "; ".join(f"{name}: {fmt.layout}" for name, fmt in FORMATS.items())
 
 
 def detect_format(path: Path) -> str:
     """The one format that recognises ``path``, or a clear error."""
     if not path.exists():
         raise DataError(f"data not found: {path}")
-    matches = [name for name, (_, detect) in FORMATS.items() if detect(path)]
+    matches = [name for name, fmt in FORMATS.items() if fmt.detect(path)]
     if len(matches) == 1:
         return matches[0]
     if not matches:
-        raise DataError(f"cannot tell the format of {path}; use --data-format with one of: {', '.join(FORMATS)}")
+        shape = image_shape(path)
+        what = f" (a {shape[1]}x{shape[0]} image)" if shape else ""
+        raise DataError(f"cannot tell the format of {path}{what}; expected one of these, or name one with "
+                        f"--data-format: {format_list()}")
     raise DataError(f"{path} could be any of {', '.join(matches)}; choose one with --data-format")
 
 
 def resolve_dataparser(path: Path, data_format: str = "auto", base: Optional[DataParserConfig] = None
                        ) -> DataParserConfig:
-    """A dataparser config for ``path``, keeping the common options of ``base`` (background, radius...)."""
+    """A dataparser config for ``path``, keeping the common options of ``base`` (background, radius...)
+    where the method changed them from their defaults."""
     name = detect_format(path) if data_format in ("auto", "", None) else data_format
     if name not in FORMATS:
-        raise DataError(f"unknown data format {name!r}; known formats: {', '.join(FORMATS)}")
+        raise DataError(f"unknown data format {name!r}; known formats: auto, {', '.join(FORMATS)}")
     if not path.exists():
         raise DataError(f"data not found: {path}")
-    config = FORMATS[name][0]()
+    config = FORMATS[name].make_config()
     if base is not None:
-        for key in ("background", "scene_radius", "image_scale"):
-            setattr(config, key, getattr(base, key))
+        defaults = DataParserConfig()
+        for key in COMMON_OPTIONS:
+            if getattr(base, key) != getattr(defaults, key):
+                setattr(config, key, getattr(base, key))
     config.data = path
     return config

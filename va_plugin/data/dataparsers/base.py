@@ -6,10 +6,12 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
+import numpy as np
 import torch
 
 from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
+from va_plugin.data.images import resize
 
 
 @dataclass
@@ -62,3 +64,15 @@ class DataParser:
 
     def get_outputs(self, split: str = "train") -> DataparserOutputs:
         raise NotImplementedError
+
+
+def rescale_views(cameras: Cameras, images: np.ndarray, masks: Optional[np.ndarray], factor: float
+                  ) -> Tuple[Cameras, np.ndarray, Optional[np.ndarray]]:
+    """Cameras, images ``[n, H, W, 3]`` and masks ``[n, H, W, 1]`` resized by ``factor`` (1: unchanged)."""
+    if factor == 1.0:
+        return cameras, images, masks
+    cameras = cameras.scaled(factor)
+    images = np.stack([resize(im, cameras.width, cameras.height) for im in images])
+    if masks is not None:
+        masks = np.stack([resize(m, cameras.width, cameras.height) for m in masks])
+    return cameras, images, masks

@@ -20,8 +20,8 @@ import numpy as np
 import torch
 
 from va_plugin.cameras import PERSPECTIVE, Cameras, opengl_to_opencv
-from va_plugin.data.dataparsers.base import DataParser, DataParserConfig, DataparserOutputs
-from va_plugin.data.images import read_image, resize, split_alpha
+from va_plugin.data.dataparsers.base import DataParser, DataParserConfig, DataparserOutputs, rescale_views
+from va_plugin.data.images import read_image, split_alpha
 from va_plugin.errors import DataError
 
 SPLIT_FILES = {"train": "transforms_train.json", "test": "transforms_test.json"}
@@ -135,12 +135,8 @@ class TransformsDataParser(DataParser):
         cameras = Cameras(c2w, fx, fy, cx, cy, size[0], size[1],
                           camera_type=str(meta.get("camera_type", PERSPECTIVE)),
                           pixel_offset=float(meta.get("pixel_offset", 0.5)))
-        images_np, masks_np = np.stack(images), np.stack(masks) if has_masks else None
-        if self.config.image_scale != 1.0:
-            cameras = cameras.scaled(self.config.image_scale)
-            images_np = np.stack([resize(im, cameras.width, cameras.height) for im in images_np])
-            if masks_np is not None:
-                masks_np = np.stack([resize(m, cameras.width, cameras.height) for m in masks_np])
+        cameras, images_np, masks_np = rescale_views(cameras, np.stack(images), np.stack(masks) if has_masks else None,
+                                                     self.config.image_scale)
         radius = float(meta.get("scene_radius", self.config.scene_radius))
         metadata = {"json": str(json_path)}
         scene_root = json_path.parent
