@@ -18,10 +18,9 @@ The same arguments always give the same bytes.
 from __future__ import annotations
 
 import json
-from contextlib import contextmanager
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Dict, Iterator, List, Optional, Sequence
+from typing import Any, Dict, List, Optional, Sequence
 
 import numpy as np
 import torch
@@ -34,23 +33,13 @@ from va_plugin.data.scenes.inconsistency import (AMPLITUDES, KINDS, LEVEL_SCALE,
 from va_plugin.data.scenes.rig import RIG_VIEWS, benchmark_cameras, input_view_ids, view_angles
 from va_plugin.data.scenes.sources import ImageSource, SceneSource, load_source
 from va_plugin.eval import psnr
+from va_plugin.utils.threads import single_thread
 from va_plugin.errors import ConfigError
 
 SCENE_VERSION = 2  # 1: consistent mug only; 2: sources, inconsistency, measured errors
 SCENE_RADIUS = 0.9  # the unit box's corners are at 0.866 from the origin
 DEFAULT_SCENE_LEVEL = 2
 WHITE = np.ones(3, dtype=np.float32)
-
-
-@contextmanager
-def single_thread() -> Iterator[None]:
-    """Run torch on one thread: the many small ops here are slower threaded, and results stay fixed."""
-    previous = torch.get_num_threads()
-    torch.set_num_threads(1)
-    try:
-        yield
-    finally:
-        torch.set_num_threads(previous)
 
 
 def quantise(rgba: np.ndarray) -> np.ndarray:

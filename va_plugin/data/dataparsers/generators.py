@@ -1,0 +1,369 @@
+"""Dataparsers for the raw outputs of multi-view generators: SyncDreamer, Zero123++ and Wonder3D.
+
+Each reads the generator's own file layout, gives its views the generator's fixed cameras
+(:mod:`va_plugin.data.rigs`), finds a foreground mask per view (the user's masks, else the image's alpha,
+else a colour key on the flat background: :mod:`va_plugin.data.foreground`) and composites the views on
+the configured background. The object must end up in the unit box at the origin, the scale the models
+are tuned for: SyncDreamer's rig already puts it there; for the other rigs the visual hull of the masks
+is measured and the cameras are moved and scaled to put its box there (``normalize = "silhouettes"``).
+The hull's per-view silhouette IoU is kept in the metadata as a check of the rig.
+"""
+
+from __future__ import annotations
+
+import re
+import warnings
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Sequence, Tuple, Type
+
+import numpy as np
+import torch
+
+from va_plugin.cameras import Cameras
+from va_plugin.data import rigs
+from va_plugin.data.dataparsers.base import DataParser, DataParserConfig, DataparserOutputs, rescale_views
+from va_plugin.data.foreground import ColourKey, check_masks, colour_key_mask, composite, mask_from_image
+from va_plugin.data.images import read_image, split_alpha
+from va_plugin.data.visual_hull import normalise_cameras, visual_hull
+from va_plugin.errors import ConfigError, DataError
+
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
+NORMALIZE_MODES = ("rig", "silhouettes")
+LOW_SILHOUETTE_IOU = 0.8  # below this mean the rig does not explain the views (real outputs on their rig: 0.86-0.94)
+
+SYNCDREAMER_LAYOUT = "one image of 16 square views side by side in azimuth order, 256 high x 4096 wide"
+ZERO123PP_LAYOUT = "one image of 3 rows x 2 columns of square views in row-major order, 640 wide x 960 high"
+WONDER3D_LAYOUT = ("a folder with rgb_000_<view>.png for the views " + ", ".join(v for v, _ in rigs.WONDER3D_VIEWS)
+                   + " (optionally normals_000_<view>.png and masked_colors/rgb_000_<view>.png)")
+
+
+def image_files(folder: Path) -> List[Path]:
+    """The image files directly in ``folder``, sorted by name."""
+    return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
+
+
+def split_strip(image: np.ndarray, count: int, where: str, layout: str) -> List[np.ndarray]:
+    """``count`` square tiles side by side -> list of ``[H, H, C]``; a clear error for any other size."""
+    height, width = image.shape[:2]
+    if width != count * height:
+        raise DataError(f"{where} is {height} high x {width} wide; expected {layout}")
+    return [image[:, k * height:(k + 1) * height] for k in range(count)]
+
+
+def split_grid(image: np.ndarray, rows: int, columns: int, where: str, layout: str) -> List[np.ndarray]:
+    """A grid of ``rows x columns`` square tiles, row-major -> list of ``[t, t, C]``."""
+    height, width = image.shape[:2]
+    tile = width // columns
+    if width != columns * tile or height != rows * tile or tile == 0:
+        raise DataError(f"{where} is {width} wide x {height} high; expected {layout}")
+    return [image[r * tile:(r + 1) * tile, c * tile:(c + 1) * tile] for r in range(rows) for c in range(columns)]
+
+
+@dataclass
+class GeneratorDataParserConfig(DataParserConfig):
+    """Options shared by the generator-output dataparsers."""
+
+    scene_radius: float = 0.9
+    """Radius of the bounding sphere; the object is brought into the unit box, whose corners are at 0.87."""
+    masks: Optional[Path] = None
+    """Masks that override the colour key and any alpha: a folder with one image per view (view order), or
+    one image with the same layout as the input. White (or opaque) is the object."""
+    colour_key: ColourKey = field(default_factory=ColourKey)
+    """How the background is keyed out of views without alpha."""
+    normalize: str = "rig"
+    """"rig": trust the generator's documented object scale; "silhouettes": centre and scale the visual
+    hull of the masks into the unit box."""
+    hull_resolution: int = 64
+    """Voxels along the longest side of the visual hull (for normalisation and the silhouette check)."""
+
+
+@dataclass
+class _Views:
+    """Every view of a generator output, before the split into training and held-out views."""
+
+    images: np.ndarray  # [n, H, W, 3]
+    masks: np.ndarray  # [n, H, W, 1]
+    cameras: Cameras
+    paths: List[Path]
+    metadata: Dict[str, Any]
+
+
+class GeneratorDataParser(DataParser):
+    """Shared reading, masking and normalisation; subclasses give the layout and the rig."""
+
+    config: GeneratorDataParserConfig
+    format_name = "generator"
+    layout = ""
+
+    def __init__(self, config: GeneratorDataParserConfig) -> None:
+        super().__init__(config)
+        self._views: Optional[_Views] = None
+
+    # -- what a generator defines ---------------------------------------------------------------------
+    def read_tiles(self) -> Tuple[List[np.ndarray], List[str], List[Path]]:
+        """The views as ``[t, t, 3|4]`` arrays, a name for each (for messages) and the file each came from."""
+        raise NotImplementedError
+
+    def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
+        """Tiles of one image in this generator's layout (for mask images given in that layout)."""
+        raise DataError(f"{self.format_name} masks must be a folder with one image per view")
+
+    def rig(self, tile_size: int) -> Cameras:
+        raise NotImplementedError
+
+    def train_ids(self, count: int) -> List[int]:
+        return list(range(count))
+
+    def view_names(self) -> Optional[Sequence[str]]:
+        """Names that identify each view in a file name, when the generator names its files by view."""
+        return None
+
+    def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> Dict[str, Any]:
+        return {}
+
+    # -- shared -------------------------------------------------------------------------------------
+    def _user_masks(self, count: int, size: int) -> List[np.ndarray]:
+        path = Path(self.config.masks)
+        if path.is_file():
+            tiles = self.split_image(read_image(path), str(path))
+            files = [path] * len(tiles)
+        elif path.is_dir():
+            files = self._mask_files(path, count)
+            tiles = [read_image(f) for f in files]
+        else:
+            raise DataError(f"mask folder or image not found: {path}")
+        if len(tiles) != count:
+            raise DataError(f"{path} gives {len(tiles)} masks; the input has {count} views")
+        masks = []
+        for tile, file in zip(tiles, files):
+            if tile.shape[:2] != (size, size):
+                raise DataError(f"mask {file} is {tile.shape[1]}x{tile.shape[0]}; the views are {size}x{size}")
+            masks.append(mask_from_image(tile))
+        return masks
+
+    def _mask_files(self, folder: Path, count: int) -> List[Path]:
+        files = image_files(folder)
+        names = self.view_names()
+        if names is not None:
+            by_view = {view: [f for f in files if re.search(rf"(^|_){view}$", f.stem)] for view in names}
+            if all(len(found) == 1 for found in by_view.values()):
+                return [by_view[view][0] for view in names]
+        if len(files) != count:
+            order = f" named by view ({', '.join(names)})" if names else " in view order (sorted by name)"
+            raise DataError(f"mask folder {folder} holds {len(files)} images; expected {count}, one per view{order}")
+        return files
+
+    def _load(self) -> _Views:
+        if self._views is not None:
+            return self._views
+        tiles, names, paths = self.read_tiles()
+        size = tiles[0].shape[0]
+        key = self.config.colour_key
+        background = self.config.background
+        if self.config.masks is not None:
+            masks = self._user_masks(len(tiles), size)
+            check_masks(masks, [f"mask of {n}" for n in names], key)
+            images = [composite(split_alpha(t, background)[0], m, background) for t, m in zip(tiles, masks)]
+            source = f"mask files ({self.config.masks})"
+        elif all(t.shape[2] == 4 for t in tiles):
+            pairs = [split_alpha(t, background) for t in tiles]
+            images, masks = [p[0] for p in pairs], [p[1] for p in pairs]
+            check_masks(masks, [f"alpha of {n}" for n in names], key)
+            source = "alpha channel"
+        else:
+            rgb = [t[:, :, :3] for t in tiles]
+            masks = [colour_key_mask(im, key, where=n) for im, n in zip(rgb, names)]
+            images = [composite(im, m, background) for im, m in zip(rgb, masks)]
+            source = "colour key"
+        masks_np = np.stack(masks).astype(np.float32)
+        cameras = self.rig(size)
+        cameras, hull_info = self._place(cameras, masks_np)
+        metadata = {"format": self.format_name, "source": str(self.config.data), "mask_source": source,
+                    "view_names": list(names), **hull_info}
+        metadata.update(self.extra_metadata(cameras, masks_np))
+        self._views = _Views(np.stack(images).astype(np.float32), masks_np, cameras, paths, metadata)
+        return self._views
+
+    def _place(self, cameras: Cameras, masks: np.ndarray) -> Tuple[Cameras, Dict[str, Any]]:
+        """Check the rig against the masks' visual hull and, with ``normalize = "silhouettes"``, move the
+        hull's box to the unit box at the origin."""
+        mode = self.config.normalize
+        if mode not in NORMALIZE_MODES:
+            raise ConfigError(f"unknown normalize mode {mode!r}; use one of: {', '.join(NORMALIZE_MODES)}")
+        silhouettes = torch.from_numpy(masks[..., 0] > 0.5)
+        hull = visual_hull(cameras, silhouettes, self.config.hull_resolution)
+        if hull.points.numel() == 0:
+            raise DataError(f"{self.config.data}: the {len(cameras)} views' silhouettes share no volume under the "
+                            f"{self.format_name} rig; is the format (--data-format) or rig option right?")
+        if mode == "silhouettes":
+            cameras = normalise_cameras(cameras, *hull.bounds)
+            hull = visual_hull(cameras, silhouettes, self.config.hull_resolution)
+        iou = hull.silhouette_iou
+        if sum(iou) / len(iou) < LOW_SILHOUETTE_IOU:
+            warnings.warn(f"{self.config.data}: the masks agree poorly with the {self.format_name} rig (mean "
+                          f"silhouette IoU {sum(iou) / len(iou):.2f}); check the format and rig options and "
+                          "the mask picture in the run folder")
+        lower, upper = hull.bounds
+        info = {"normalize": mode, "hull_bounds": [lower.tolist(), upper.tolist()],
+                "silhouette_iou": [round(v, 4) for v in iou]}
+        return cameras, info
+
+    def get_outputs(self, split: str = "train") -> Optional[DataparserOutputs]:
+        views = self._load()
+        count = len(views.paths)
+        train = self.train_ids(count)
+        ids = train if split == "train" else [i for i in range(count) if i not in train]
+        if not ids:
+            return None
+        cameras, images, masks = rescale_views(views.cameras.subset(ids), views.images[ids], views.masks[ids],
+                                               self.config.image_scale)
+        metadata = dict(views.metadata, view_ids=ids)
+        return DataparserOutputs(
+            images=torch.from_numpy(np.ascontiguousarray(images)).float(),
+            masks=torch.from_numpy(np.ascontiguousarray(masks)).float(),
+            cameras=cameras, scene_radius=float(self.config.scene_radius),
+            background=tuple(self.config.background), image_paths=[views.paths[i] for i in ids], metadata=metadata)
+
+
+# -- SyncDreamer ------------------------------------------------------------------------------------
+@dataclass
+class SyncDreamerDataParserConfig(GeneratorDataParserConfig):
+    """A SyncDreamer output: one strip of 16 views on its 30-degree orbit."""
+
+    _target: Type = field(default_factory=lambda: SyncDreamerDataParser)
+    num_views: int = 4
+    """Training views, uniform in azimuth from view 0 (4, 8, 12 or 16); the others are held out."""
+    elevation_deg: float = rigs.RIG_ELEVATION_DEG
+    """Elevation of the 16 cameras (SyncDreamer generates at 30 degrees)."""
+    pixel_offset: float = 0.5
+    """Where pixels are sampled: 0.5 matches the Blender renders SyncDreamer was trained on."""
+
+
+class SyncDreamerDataParser(GeneratorDataParser):
+    config: SyncDreamerDataParserConfig
+    format_name = "syncdreamer"
+    layout = SYNCDREAMER_LAYOUT
+
+    def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
+        return split_strip(image, rigs.RIG_VIEWS, where, self.layout)
+
+    def read_tiles(self):
+        path = Path(self.config.data)
+        if not path.is_file():
+            raise DataError(f"a SyncDreamer input is {self.layout}; {path} is not a file")
+        tiles = self.split_image(read_image(path), str(path))
+        return tiles, [f"{path.name} view {k}" for k in range(len(tiles))], [path] * len(tiles)
+
+    def rig(self, tile_size: int) -> Cameras:
+        return rigs.syncdreamer_rig(tile_size, self.config.elevation_deg, self.config.pixel_offset)
+
+    def train_ids(self, count: int) -> List[int]:
+        return rigs.input_view_ids(self.config.num_views)
+
+
+# -- Zero123++ --------------------------------------------------------------------------------------
+@dataclass
+class Zero123ppDataParserConfig(GeneratorDataParserConfig):
+    """A Zero123++ output: a 3 x 2 grid of six views around the input view."""
+
+    _target: Type = field(default_factory=lambda: Zero123ppDataParser)
+    rig: str = "v1.2"
+    """Model version, which fixes elevations and field of view: v1.1 or v1.2."""
+    normalize: str = "silhouettes"
+    """Zero123++ leaves the camera radius (hence the object's size) free: fit it from the masks."""
+
+
+class Zero123ppDataParser(GeneratorDataParser):
+    config: Zero123ppDataParserConfig
+    format_name = "zero123pp"
+    layout = ZERO123PP_LAYOUT
+
+    def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
+        return split_grid(image, 3, 2, where, self.layout)
+
+    def read_tiles(self):
+        path = Path(self.config.data)
+        if not path.is_file():
+            raise DataError(f"a Zero123++ input is {self.layout}; {path} is not a file")
+        tiles = self.split_image(read_image(path), str(path))
+        return tiles, [f"{path.name} view {k}" for k in range(len(tiles))], [path] * len(tiles)
+
+    def rig(self, tile_size: int) -> Cameras:
+        return rigs.zero123pp_rig(self.config.rig, tile_size)
+
+
+# -- Wonder3D ---------------------------------------------------------------------------------------
+@dataclass
+class Wonder3DDataParserConfig(GeneratorDataParserConfig):
+    """A Wonder3D output folder: six orthographic views (RGB, and normal maps when present)."""
+
+    _target: Type = field(default_factory=lambda: Wonder3DDataParser)
+    ortho_scale: float = rigs.WONDER3D_ORTHO_SCALE
+    """World units across an image (Wonder3D rendered with 1.35)."""
+    normal_frame: str = "front"
+    """Camera frame of the normal maps: "front" (what Wonder3D's own reconstruction assumes) or "view"."""
+    normalize: str = "silhouettes"
+    """Fit the masks' visual hull into the unit box."""
+
+
+def wonder3d_file(folder: Path, prefix: str, view: str) -> Optional[Path]:
+    """``<prefix>_<index>_<view>.<ext>`` (or ``<prefix>_<view>``) in ``folder``, or None."""
+    if not folder.is_dir():
+        return None
+    pattern = re.compile(rf"^{prefix}(_\d+)?_{view}$")
+    found = [p for p in image_files(folder) if pattern.match(p.stem)]
+    return found[0] if found else None
+
+
+class Wonder3DDataParser(GeneratorDataParser):
+    config: Wonder3DDataParserConfig
+    format_name = "wonder3d"
+    layout = WONDER3D_LAYOUT
+
+    def view_names(self) -> Sequence[str]:
+        return [view for view, _ in rigs.WONDER3D_VIEWS]
+
+    def read_tiles(self):
+        folder = Path(self.config.data)
+        if not folder.is_dir():
+            raise DataError(f"a Wonder3D input is {self.layout}; {folder} is not a folder")
+        masked = [wonder3d_file(folder / "masked_colors", "rgb", v) for v in self.view_names()]
+        plain = [wonder3d_file(folder, "rgb", v) for v in self.view_names()]
+        paths = masked if all(masked) else plain
+        missing = [v for v, p in zip(self.view_names(), paths) if p is None]
+        if missing:
+            raise DataError(f"{folder} is missing the Wonder3D view(s) {', '.join(missing)}; expected {self.layout}")
+        tiles = [read_image(p) for p in paths]
+        size = tiles[0].shape[0]
+        for tile, path in zip(tiles, paths):
+            if tile.shape[:2] != (size, size):
+                raise DataError(f"{path} is {tile.shape[1]}x{tile.shape[0]}; Wonder3D views are square and "
+                                f"all the size of {paths[0].name} ({size}x{size})")
+        return tiles, [str(p) for p in paths], paths
+
+    def rig(self, tile_size: int) -> Cameras:
+        return rigs.wonder3d_rig(tile_size, self.config.ortho_scale)
+
+    def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> Dict[str, Any]:
+        """World-space normal maps ``[6, H, W, 3]`` (zero outside their alpha) when the folder has them."""
+        if self.config.normal_frame not in ("front", "view"):
+            raise ConfigError(f"normal_frame must be front or view, got {self.config.normal_frame!r}")
+        folder = Path(self.config.data)
+        paths = [wonder3d_file(folder, "normals", v) for v in self.view_names()]
+        if not all(paths):
+            return {}
+        normals = []
+        for k, path in enumerate(paths):
+            image = read_image(path)
+            if image.shape[:2] != masks.shape[1:3]:
+                raise DataError(f"{path} is {image.shape[1]}x{image.shape[0]}; the views are "
+                                f"{masks.shape[2]}x{masks.shape[1]}")
+            # stored as (n + 1) / 2 in OpenGL camera axes (x right, y up, z towards the viewer)
+            n_gl = torch.from_numpy(image[:, :, :3] * 2.0 - 1.0)
+            n_cv = n_gl * torch.tensor([1.0, -1.0, -1.0])
+            frame = 0 if self.config.normal_frame == "front" else k
+            world = torch.nn.functional.normalize(n_cv @ cameras.c2w[frame, :, :3].T, dim=-1)
+            alpha = torch.from_numpy(image[:, :, 3:] if image.shape[2] == 4 else masks[k])
+            normals.append(world * (alpha > 0.5))
+        return {"normals": torch.stack(normals), "normal_paths": [str(p) for p in paths]}
