@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import dataclasses
 import json
+import math
 from dataclasses import dataclass, field, fields, is_dataclass
 from typing import Any, Type
 
@@ -69,7 +70,10 @@ def _convert(text: str, current: Any, name: str) -> Any:
         if isinstance(current, int):
             return int(text)
         if isinstance(current, float):
-            return float(text)
+            value = float(text)
+            if not math.isfinite(value):
+                raise ConfigError(f"option {name} takes a finite number, got {text!r}")
+            return value
     except ValueError:
         kind = "an integer" if isinstance(current, int) else "a number"
         raise ConfigError(f"option {name} takes {kind}, got {text!r}") from None
@@ -101,8 +105,12 @@ def apply_override(config: Any, assignment: str) -> None:
     parts = path.strip().split(".")
     target = config
     for depth, part in enumerate(parts[:-1]):
-        if not hasattr(target, part):
-            raise ConfigError(f"unknown option {'.'.join(parts[: depth + 1])!r} in {assignment!r}")
+        if isinstance(target, dict) and part in target:  # e.g. optimizers.fields.lr
+            target = target[part]
+            continue
+        if isinstance(target, dict) or not hasattr(target, part):
+            known = f"; known: {', '.join(map(str, target))}" if isinstance(target, dict) else ""
+            raise ConfigError(f"unknown option {'.'.join(parts[: depth + 1])!r} in {assignment!r}{known}")
         target = getattr(target, part)
     last = parts[-1]
     if not is_dataclass(target) or last not in {f.name for f in fields(target)}:

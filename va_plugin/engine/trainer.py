@@ -17,6 +17,7 @@ from tqdm import tqdm
 
 from va_plugin.config import InstantiateConfig, to_dict
 from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
+from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.pipelines.base import Pipeline, PipelineConfig
@@ -61,6 +62,8 @@ class TrainerConfig(InstantiateConfig):
     """CPU threads for torch (0: torch's default)."""
     progress: bool = True
     """Show a progress bar."""
+    health: HealthConfig = field(default_factory=HealthConfig)
+    """What counts as a bad step (non-finite, blow-up) and how the run recovers from it."""
 
 
 def seed_everything(seed: int) -> None:
@@ -127,8 +130,12 @@ class Trainer:
         self.callbacks: List[TrainingCallback] = list(self.model.training_callbacks())
         self.step = 0
         self.train_seconds = 0.0
-        self.bad_steps = 0
-        self._warned_bad_step = False
+        self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"))
+
+    @property
+    def bad_steps(self) -> int:
+        """Steps skipped or rolled back so far (non-finite values, blow-ups)."""
+        return self.guard.bad_steps
 
     # -- setup ----------------------------------------------------------------------------------
     def _make_optimizer(self) -> torch.optim.Optimizer:
@@ -149,7 +156,7 @@ class Trainer:
         factor = self.config.scheduler.factor(step, self.config.max_steps)
         for group in self.optimizer.param_groups:
             base = self.config.optimizers[group["name"]].lr
-            group["lr"] = base * factor * self.lr_multipliers.get(group["name"], 1.0)
+            group["lr"] = base * factor * self.lr_multipliers.get(group["name"], 1.0) * self.guard.lr_scale
 
     # -- checkpoints ----------------------------------------------------------------------------
     def state_dict(self) -> Dict[str, Any]:
@@ -160,6 +167,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "lr_multipliers": dict(self.lr_multipliers),
+            "health": self.guard.state_dict(),
             "datamanager": self.pipeline.datamanager.state_dict(),
             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),
                     "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None},
@@ -172,6 +180,8 @@ class Trainer:
         atomic_save(self.state_dict(), path)
         for old in list_checkpoints(self.run_dir)[:-max(1, self.config.keep_checkpoints)]:
             old.unlink(missing_ok=True)
+        for stale in path.parent.glob(CHECKPOINT_GLOB + ".tmp"):  # left by a run killed mid-write
+            stale.unlink(missing_ok=True)
         return path
 
     def load_state(self, state: Dict[str, Any]) -> None:
@@ -187,6 +197,7 @@ class Trainer:
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
         self.lr_multipliers.update(state.get("lr_multipliers", {}))
+        self.guard.load_state_dict(state.get("health", {}))
         self.pipeline.datamanager.load_state_dict(state["datamanager"])
         rng = state["rng"]
         torch.set_rng_state(rng["torch"])
@@ -200,7 +211,28 @@ class Trainer:
         if not list_checkpoints(self.run_dir):
             return False
         self.load_state(load_checkpoint(self.run_dir, map_location=self.device))
+        self._truncate_log()
         return True
+
+    def _truncate_log(self) -> None:
+        """Drop the log lines of steps after the resumed checkpoint (a killed run logged them, the
+        resumed run logs them again), so the log reads as one uninterrupted run."""
+        path = self.run_dir / "metrics.jsonl"
+        if not path.is_file():
+            return
+        kept = []
+        for line in path.read_text(encoding="utf-8").splitlines():
+            try:
+                entry = json.loads(line)
+                step = int(entry.get("step", 0))
+            except (ValueError, TypeError, AttributeError):
+                continue  # a line cut short by the kill
+            # events are logged before their step runs (step = steps done), records after it
+            if step < self.step or (step == self.step and "event" not in entry):
+                kept.append(line)
+        tmp = path.with_name(path.name + ".tmp")
+        tmp.write_text("".join(line + "\n" for line in kept), encoding="utf-8")
+        os.replace(tmp, path)
 
     # -- logging --------------------------------------------------------------------------------
     def log(self, record: Dict[str, Any]) -> None:
@@ -225,20 +257,26 @@ class Trainer:
         self.optimizer.zero_grad(set_to_none=True)
         loss_dict, metrics = self.pipeline.train_step(self.step)
         loss = sum(loss_dict.values())
-        finite = bool(torch.isfinite(loss))
-        if finite:
+        params = [p for group in self.optimizer.param_groups for p in group["params"]]
+        guard = self.guard
+        verdict = guard.check_loss(loss)
+        if verdict == OK:
+            guard.maybe_snapshot(self.step, self.model, self.optimizer)  # these parameters gave a sane loss
             loss.backward()
-            finite = all(p.grad is None or bool(torch.isfinite(p.grad).all())
-                         for group in self.optimizer.param_groups for p in group["params"])
-        if finite:
+            verdict = guard.check_gradients(params)
+        if verdict == OK:
             self.optimizer.step()
+            verdict = guard.check_parameters(params)
+        if verdict == OK:
+            guard.accept(loss)
         else:
-            self.bad_steps += 1
             self.optimizer.zero_grad(set_to_none=True)
-            if not self._warned_bad_step:
-                warnings.warn(f"step {self.step}: non-finite loss or gradient; the step was skipped "
-                              "(further skips are counted in the log as bad_steps)")
-                self._warned_bad_step = True
+            if verdict == SKIP:
+                guard.warn_once("skip", f"step {self.step + 1}: {guard.reason}; the step was skipped (further "
+                                        "skips are counted in metrics.jsonl as bad_steps)")
+            else:
+                guard.restore(self.step + 1, self.model, self.optimizer)
+        finite = bool(torch.isfinite(loss))
         record = {"loss": float(loss.detach()) if finite else float("nan")}
         record.update({f"loss_{k}": float(v.detach()) for k, v in loss_dict.items()})
         record.update(metrics)
@@ -266,7 +304,8 @@ class Trainer:
             bar.update(1)
             record.update(self.model.diagnostics())
             record.update({"step": self.step, "train_seconds": round(self.train_seconds, 3),
-                           "it_per_s": round(len(recent) / max(sum(recent), 1e-9), 3), "bad_steps": self.bad_steps})
+                           "it_per_s": round(len(recent) / max(sum(recent), 1e-9), 3)})
+            self.guard.observe(record)
             if self.step % cfg.log_every == 0 or self.step == cfg.max_steps:
                 self.log(record)
             bar.set_postfix({k: f"{record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record})

@@ -1,0 +1,204 @@
+"""Keeping a training run alive: bad steps are skipped, blow-ups rolled back, divergence reported.
+
+The trainer asks a :class:`TrainingGuard` about every step:
+
+* a loss or gradient that is NaN or infinite: the step is skipped (no optimizer update);
+* a loss that jumps far above its running level (a blow-up, e.g. from a learning rate far too
+  high), parameters that turned non-finite after an update, or too many skipped steps in a row:
+  the last good state (model and optimizer, kept in memory every ``snapshot_every`` steps) is
+  restored and the learning rates are multiplied by ``lr_backoff``;
+* inv_s (NeuS's sharpness) falling below its value at the start of training: a sign of divergence,
+  reported once as a warning and in every log record (``inv_s_below_start``).
+
+Each kind of event warns once; the counts go to ``metrics.jsonl`` (``bad_steps``, ``restores``,
+``lr_scale``). A run that still blows up after ``max_restores`` restores stops with
+:class:`TrainingDiverged`, a one-line user error, instead of writing a checkpoint of garbage.
+Healthy runs are untouched: the guard only reads the loss, so their numbers are bit-for-bit the same.
+"""
+
+from __future__ import annotations
+
+import copy
+import math
+import warnings
+from dataclasses import dataclass
+from typing import Any, Dict, Optional
+
+import torch
+
+from va_plugin.errors import VAError
+
+OK, SKIP, RESTORE = "ok", "skip", "restore"
+
+
+class TrainingDiverged(VAError):
+    """Training kept blowing up although the guard lowered the learning rate."""
+
+
+@dataclass
+class HealthConfig:
+    """When a step counts as bad, and what the trainer does about it."""
+
+    spike_factor: float = 20.0
+    """A loss above ``spike_factor`` times its running level (and above ``spike_floor``) is a blow-up:
+    the last good state is restored (0: no blow-up test; non-finite values are still caught)."""
+    spike_floor: float = 2.0
+    """Losses below this never count as a blow-up (a healthy run's photometric and mask terms stay far below)."""
+    snapshot_every: int = 10
+    """Steps between in-memory copies of the last good state."""
+    lr_backoff: float = 0.5
+    """Factor applied to every learning rate at each restore."""
+    max_skips_in_a_row: int = 5
+    """Consecutive skipped (non-finite) steps after which the last good state is restored."""
+    max_restores: int = 20
+    """Restores after which training stops with a clear error."""
+    inv_s_tolerance: float = 0.1
+    """inv_s counts as below its start when it falls more than this fraction under it."""
+
+    def validate(self) -> None:
+        from va_plugin.errors import ConfigError
+
+        if not (0.0 < self.lr_backoff < 1.0):
+            raise ConfigError(f"health.lr_backoff must be in (0, 1), got {self.lr_backoff}")
+        if self.snapshot_every < 1 or self.max_skips_in_a_row < 1 or self.max_restores < 0:
+            raise ConfigError("health.snapshot_every and health.max_skips_in_a_row must be at least 1, "
+                              "health.max_restores at least 0")
+        if self.spike_factor < 0 or self.spike_floor < 0 or self.inv_s_tolerance < 0:
+            raise ConfigError("health.spike_factor, health.spike_floor and health.inv_s_tolerance must be >= 0")
+
+
+def all_finite(tensors) -> bool:
+    return all(t is None or bool(torch.isfinite(t).all()) for t in tensors)
+
+
+class TrainingGuard:
+    """The health state of one run; see the module docstring. Its state goes into checkpoints."""
+
+    def __init__(self, config: HealthConfig, inv_s_start: Optional[float] = None) -> None:
+        config.validate()
+        self.config = config
+        self.level: Optional[float] = None  # running level of |loss| over accepted steps
+        self.lr_scale = 1.0
+        self.bad_steps = 0
+        self.restores = 0
+        self.skips_in_a_row = 0
+        self.inv_s_start = inv_s_start
+        self.inv_s_below_start = False
+        self._warned: set = set()
+        self._snapshot: Optional[Dict[str, Any]] = None
+        self.reason = ""
+        """What was wrong with the last bad step."""
+
+    # -- the verdict on a step ------------------------------------------------------------------------
+    def check_loss(self, loss: torch.Tensor) -> str:
+        """OK, SKIP (non-finite) or RESTORE (blow-up) for a step's total loss, before backward."""
+        value = float(loss.detach())
+        if not math.isfinite(value):
+            return self._bad("non-finite loss")
+        cfg = self.config
+        if cfg.spike_factor > 0 and self.level is not None and value > max(cfg.spike_factor * self.level,
+                                                                            cfg.spike_floor):
+            self.bad_steps += 1
+            self.reason = f"the loss blew up to {value:.3g} (running level {self.level:.3g})"
+            return RESTORE
+        return OK
+
+    def check_gradients(self, parameters) -> str:
+        """OK or SKIP for the gradients of the step's parameters."""
+        if all_finite(p.grad for p in parameters):
+            return OK
+        return self._bad("non-finite gradient")
+
+    def check_parameters(self, parameters) -> str:
+        """OK or RESTORE after the optimizer update."""
+        if all_finite(p.detach() for p in parameters):
+            return OK
+        self.bad_steps += 1
+        self.reason = "parameters turned non-finite after the update"
+        return RESTORE
+
+    def _bad(self, what: str) -> str:
+        self.bad_steps += 1
+        self.skips_in_a_row += 1
+        self.reason = what
+        if self.skips_in_a_row >= self.config.max_skips_in_a_row:
+            self.reason = f"{what}, {self.skips_in_a_row} steps in a row"
+            return RESTORE
+        return SKIP
+
+    def accept(self, loss: torch.Tensor) -> None:
+        """A step whose update was applied: its loss feeds the running level."""
+        value = abs(float(loss.detach()))
+        self.level = value if self.level is None else 0.9 * self.level + 0.1 * value
+        self.skips_in_a_row = 0
+
+    # -- last good state ------------------------------------------------------------------------------
+    def maybe_snapshot(self, step: int, model: torch.nn.Module, optimizer: torch.optim.Optimizer,
+                       force: bool = False) -> None:
+        """Keep a copy of the current (good) state every ``snapshot_every`` steps."""
+        if force or self._snapshot is None or step % self.config.snapshot_every == 0:
+            self._snapshot = {"step": step, "model": copy.deepcopy(model.state_dict()),
+                              "optimizer": copy.deepcopy(optimizer.state_dict())}
+
+    def restore(self, step: int, model: torch.nn.Module, optimizer: torch.optim.Optimizer) -> None:
+        """Go back to the last good state and lower the learning rates (or give up)."""
+        self.restores += 1
+        self.skips_in_a_row = 0
+        if self._snapshot is None or self.restores > self.config.max_restores:
+            raise TrainingDiverged(
+                f"training diverged at step {step} ({self.reason}) and kept diverging after {self.restores - 1} "
+                f"restores with the learning rate lowered to {self.lr_scale:.3g} of its value; lower the "
+                "learning rate (e.g. --set optimizers.fields.lr=...) or check the inputs")
+        model.load_state_dict(self._snapshot["model"])
+        optimizer.load_state_dict(copy.deepcopy(self._snapshot["optimizer"]))
+        self.lr_scale *= self.config.lr_backoff
+        self.warn_once("restore", f"step {step}: {self.reason}; restored the state after step {self._snapshot['step']} "
+                                  f"and lowered the learning rate to {self.lr_scale:.3g} of its value (further "
+                                  "restores are counted in metrics.jsonl as restores)")
+
+    # -- divergence signs and reporting -----------------------------------------------------------
+    def observe(self, record: Dict[str, Any]) -> None:
+        """Add the health fields to a log record; warn once when inv_s falls below its start."""
+        inv_s = record.get("inv_s")
+        if inv_s is not None and self.inv_s_start is not None:
+            below = inv_s < self.inv_s_start * (1.0 - self.config.inv_s_tolerance)
+            if below and not self.inv_s_below_start:
+                self.warn_once("inv_s", f"step {record.get('step')}: inv_s fell to {inv_s:.4g}, below its start "
+                                        f"value {self.inv_s_start:.4g}: the run is diverging (the learning rate "
+                                        "may be too high)")
+            self.inv_s_below_start = below
+            record["inv_s_below_start"] = below
+        record.update({"bad_steps": self.bad_steps, "restores": self.restores, "lr_scale": self.lr_scale})
+
+    def warn_once(self, kind: str, message: str) -> None:
+        if kind not in self._warned:
+            self._warned.add(kind)
+            warnings.warn(message, stacklevel=3)
+
+    def summary(self) -> Optional[str]:
+        """One line on what went wrong during the run, or None for a clean run."""
+        parts = []
+        if self.bad_steps:
+            parts.append(f"{self.bad_steps} bad step(s) skipped or rolled back")
+        if self.restores:
+            parts.append(f"{self.restores} restore(s), learning rate now {self.lr_scale:.3g} of its value")
+        if self.inv_s_below_start:
+            parts.append(f"inv_s ended below its start value {self.inv_s_start:.4g} (diverging: the mesh is "
+                         "likely poor)")
+        return "; ".join(parts) if parts else None
+
+    def state_dict(self) -> Dict[str, Any]:
+        return {"level": self.level, "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
+                "restores": self.restores, "skips_in_a_row": self.skips_in_a_row, "inv_s_start": self.inv_s_start,
+                "inv_s_below_start": self.inv_s_below_start, "warned": sorted(self._warned)}
+
+    def load_state_dict(self, state: Dict[str, Any]) -> None:
+        self.level = state.get("level")
+        self.lr_scale = float(state.get("lr_scale", 1.0))
+        self.bad_steps = int(state.get("bad_steps", 0))
+        self.restores = int(state.get("restores", 0))
+        self.skips_in_a_row = int(state.get("skips_in_a_row", 0))
+        self.inv_s_start = state.get("inv_s_start", self.inv_s_start)
+        self.inv_s_below_start = bool(state.get("inv_s_below_start", False))
+        self._warned = set(state.get("warned", []))
+        self._snapshot = None
