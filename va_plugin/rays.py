@@ -70,20 +70,27 @@ def near_far_from_sphere(origins: torch.Tensor, directions: torch.Tensor, radius
                          min_near: float = 0.0) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where rays enter and leave a sphere of ``radius`` at the origin.
 
+    Computed from the point of closest approach ``p = o + t_c d`` rather than the textbook
+    discriminant ``b^2 - 4ac``: for a camera far from the sphere the latter subtracts two huge, nearly
+    equal numbers and loses every digit in fp32 (a camera 10^4 radii away missed the sphere).
+
     Args:
-        origins, directions: ``[n_rays, 3]``; directions need not be unit length but must be non-zero.
+        origins, directions: ``[n_rays, 3]``; directions need not be unit length. A zero-length
+            direction (below 1e-6) is a ray that goes nowhere: it misses.
     Returns:
         nears, fars ``[n_rays, 1]`` and ``hits [n_rays]`` (bool). Rays that miss get near = far, so
         every sample interval on them has zero length and they render background.
     """
-    a = (directions * directions).sum(-1).clamp_min(1e-12)
-    b = 2.0 * (origins * directions).sum(-1)
-    c = (origins * origins).sum(-1) - radius * radius
-    disc = b * b - 4.0 * a * c
-    hits = disc > 0
-    root = torch.sqrt(disc.clamp_min(0.0))
-    near = ((-b - root) / (2.0 * a)).clamp_min(min_near)
-    far = (-b + root) / (2.0 * a)
+    a = (directions * directions).sum(-1)
+    usable = a > 1e-12
+    a = torch.where(usable, a, torch.ones_like(a))
+    t_closest = -(origins * directions).sum(-1) / a
+    closest = origins + t_closest[:, None] * directions
+    half_chord_sq = (radius * radius - (closest * closest).sum(-1)) / a
+    hits = usable & (half_chord_sq > 0)
+    half_chord = torch.sqrt(half_chord_sq.clamp_min(0.0))
+    near = (t_closest - half_chord).clamp_min(min_near)
+    far = t_closest + half_chord
     hits = hits & (far > near)
     far = torch.where(hits, far, near)
     return near[:, None], far[:, None], hits

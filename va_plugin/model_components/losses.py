@@ -11,11 +11,18 @@ def rgb_loss(pred: torch.Tensor, target: torch.Tensor, kind: str = "l2") -> torc
     return (diff * diff).mean() if kind == "l2" else diff.abs().mean()
 
 
+GRADIENT_BOUND = 1e12
+"""SDF gradient components are clamped to +-1e12 in the eikonal loss, so a blown-up field gives a huge
+but finite loss (which the trainer's guard rolls back) instead of an overflow to inf and NaN gradients."""
+
+
 def eikonal_loss(gradients: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
     """``mean (|grad sdf| - 1)^2`` over ``gradients [..., 3]`` (optionally only where ``valid [...]``).
 
-    The norm is taken as sqrt(sum^2 + 1e-12) so its gradient is finite at a zero gradient.
+    The norm is taken as sqrt(sum^2 + 1e-12) so its gradient is finite at a zero gradient, and of the
+    components clamped to ``GRADIENT_BOUND`` so it cannot overflow.
     """
+    gradients = gradients.clamp(-GRADIENT_BOUND, GRADIENT_BOUND)
     norm = torch.sqrt((gradients * gradients).sum(-1) + 1e-12)
     error = (norm - 1.0) ** 2
     if valid is None:
