@@ -226,6 +226,17 @@ class GeneratorDataParser(DataParser):
             background=tuple(self.config.background), image_paths=[views.paths[i] for i in ids], metadata=metadata)
 
 
+class SingleImageDataParser(GeneratorDataParser):
+    """Generators that write every view into one image (a strip or a grid)."""
+
+    def read_tiles(self):
+        path = Path(self.config.data)
+        if not path.is_file():
+            raise DataError(f"a {self.format_name} input is {self.layout}; {path} is not a file")
+        tiles = self.split_image(read_image(path), str(path))
+        return tiles, [f"{path.name} view {k}" for k in range(len(tiles))], [path] * len(tiles)
+
+
 # -- SyncDreamer ------------------------------------------------------------------------------------
 @dataclass
 class SyncDreamerDataParserConfig(GeneratorDataParserConfig):
@@ -240,20 +251,13 @@ class SyncDreamerDataParserConfig(GeneratorDataParserConfig):
     """Where pixels are sampled: 0.5 matches the Blender renders SyncDreamer was trained on."""
 
 
-class SyncDreamerDataParser(GeneratorDataParser):
+class SyncDreamerDataParser(SingleImageDataParser):
     config: SyncDreamerDataParserConfig
     format_name = "syncdreamer"
     layout = SYNCDREAMER_LAYOUT
 
     def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
         return split_strip(image, rigs.RIG_VIEWS, where, self.layout)
-
-    def read_tiles(self):
-        path = Path(self.config.data)
-        if not path.is_file():
-            raise DataError(f"a SyncDreamer input is {self.layout}; {path} is not a file")
-        tiles = self.split_image(read_image(path), str(path))
-        return tiles, [f"{path.name} view {k}" for k in range(len(tiles))], [path] * len(tiles)
 
     def rig(self, tile_size: int) -> Cameras:
         return rigs.syncdreamer_rig(tile_size, self.config.elevation_deg, self.config.pixel_offset)
@@ -274,20 +278,13 @@ class Zero123ppDataParserConfig(GeneratorDataParserConfig):
     """Zero123++ leaves the camera radius (hence the object's size) free: fit it from the masks."""
 
 
-class Zero123ppDataParser(GeneratorDataParser):
+class Zero123ppDataParser(SingleImageDataParser):
     config: Zero123ppDataParserConfig
     format_name = "zero123pp"
     layout = ZERO123PP_LAYOUT
 
     def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
         return split_grid(image, 3, 2, where, self.layout)
-
-    def read_tiles(self):
-        path = Path(self.config.data)
-        if not path.is_file():
-            raise DataError(f"a Zero123++ input is {self.layout}; {path} is not a file")
-        tiles = self.split_image(read_image(path), str(path))
-        return tiles, [f"{path.name} view {k}" for k in range(len(tiles))], [path] * len(tiles)
 
     def rig(self, tile_size: int) -> Cameras:
         return rigs.zero123pp_rig(self.config.rig, tile_size)
