@@ -125,12 +125,14 @@ class NeuSModel(Model):
         ray_bundle.nears, ray_bundle.fars = nears, fars
         edges, sdf_coarse, active = self._coarse(ray_bundle)
         n_rays = len(ray_bundle)
+        blank = False
         if bool(active.all()):
             index, sub = None, ray_bundle
         else:
             index = active.nonzero().squeeze(-1)
             if index.numel() == 0:
-                index = index.new_zeros(1)  # keep one ray so per-sample outputs (eikonal) stay well-formed
+                # render one ray so per-sample outputs (eikonal) and the graph stay well-formed; it shows nothing
+                index, blank = index.new_zeros(1), True
             sub, edges, sdf_coarse = ray_bundle[index], edges[index], sdf_coarse[index]
         fine = self._sample_edges(sub, edges, sdf_coarse)
         keep = None
@@ -141,7 +143,7 @@ class NeuSModel(Model):
         if self.training:
             self.samples_per_ray = inner["weights"].numel() / max(n_rays, 1)
             self.probed_per_ray = (edges.shape[1] * n_rays + self._upsample_probes() * len(sub)) / max(n_rays, 1)
-        return inner if index is None else _scatter_rays(inner, index, n_rays, self.background)
+        return inner if index is None else _scatter_rays(inner, index, n_rays, self.background, blank)
 
     def _upsample_probes(self) -> int:
         """SDF evaluations per rendered ray of the up-sampling rounds (the last round's samples are
@@ -222,15 +224,18 @@ PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")
 
 
 def _scatter_rays(inner: Dict[str, torch.Tensor], index: torch.Tensor, n_rays: int,
-                  background: torch.Tensor) -> Dict[str, torch.Tensor]:
+                  background: torch.Tensor, blank: bool = False) -> Dict[str, torch.Tensor]:
     """Per-ray outputs for all ``n_rays`` from those of the rendered subset ``index``; skipped rays
-    render the background with zero opacity. Per-sample outputs keep only the rendered rays."""
+    render the background with zero opacity. Per-sample outputs keep only the rendered rays. With
+    ``blank``, the rendered rays were skipped too (kept only for the graph): they show nothing either."""
     out = dict(inner)
     for key in PER_RAY_KEYS:
         value = inner[key]
         full = value.new_zeros((n_rays,) + value.shape[1:])
         if key == "rgb":
             full = full + background
+        if blank:  # zero times the render keeps the graph (and finite, zero gradients)
+            value = value * 0.0 + full[index]
         out[key] = full.index_put((index,), value)
     return out
 
