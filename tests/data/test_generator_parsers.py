@@ -207,6 +207,20 @@ def test_mask_folder_overrides_the_colour_key(syncdreamer_strip, tmp_path):
     assert iou(train.masks[1, ..., 0].numpy() > 0.5, alpha[4] > 0.5) == 1.0
 
 
+def test_wonder3d_alpha_and_masks_named_by_view(renderer, tmp_path):
+    cameras = rigs.wonder3d_rig(TILE)
+    rgba = np.stack([renderer.render(cameras, k) for k in range(6)])
+    for k, (view, _) in enumerate(rigs.WONDER3D_VIEWS):
+        write_image(tmp_path / "scene" / "masked_colors" / f"rgb_000_{view}.png", rgba[k])
+        # the user's masks: named by view, so sorted order (back, front, ...) must not matter
+        write_image(tmp_path / "masks" / f"mask_{view}.png", np.repeat(rgba[k, ..., 3:] > 0.5, 3, -1).astype(np.float32))
+    train, _ = parse(tmp_path / "scene")
+    assert train.metadata["mask_source"] == "alpha channel" and "normals" not in train.metadata
+    assert torch.allclose(train.masks[..., 0], torch.from_numpy(rgba[..., 3]), atol=1 / 255)
+    train, _ = parse(tmp_path / "scene", masks=tmp_path / "masks")
+    assert torch.equal(train.masks[..., 0] > 0.5, torch.from_numpy(rgba[..., 3] > 0.5))
+
+
 def test_mask_picture_lands_in_the_run_folder(syncdreamer_strip, tmp_path, capsys):
     run = tmp_path / "run"
     argv = ["neus", "--data", str(syncdreamer_strip[0]), "--views", "4", "--output-dir", str(run), "--steps", "1",

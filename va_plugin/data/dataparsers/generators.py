@@ -146,7 +146,12 @@ class GeneratorDataParser(DataParser):
         files = image_files(folder)
         names = self.view_names()
         if names is not None:
-            by_view = {view: [f for f in files if re.search(rf"(^|_){view}$", f.stem)] for view in names}
+            by_view: Dict[str, List[Path]] = {view: [] for view in names}
+            for file in files:
+                # the longest view name the file name ends with ("front_right" before "right")
+                ends = [v for v in names if re.search(rf"(^|_){v}$", file.stem)]
+                if ends:
+                    by_view[max(ends, key=len)].append(file)
             if all(len(found) == 1 for found in by_view.values()):
                 return [by_view[view][0] for view in names]
         if len(files) != count:
