@@ -33,6 +33,10 @@ class Hull:
         half = self.voxel / 2.0
         return self.points.min(0).values - half, self.points.max(0).values + half
 
+    def moved(self, centre: torch.Tensor, scale: float) -> "Hull":
+        """The same hull in a world moved by ``-centre`` and scaled by ``scale`` (silhouettes unchanged)."""
+        return Hull((self.points - centre) * scale, self.voxel * scale, list(self.silhouette_iou))
+
 
 def _inside_all(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """``[m]`` True where a point projects into the foreground of every view. A projection beyond the
@@ -107,11 +111,14 @@ def silhouette_agreement(cameras: Cameras, masks: torch.Tensor, points: torch.Te
     return scores
 
 
-def normalise_cameras(cameras: Cameras, lower: torch.Tensor, upper: torch.Tensor, side: float = 1.0) -> Cameras:
-    """The same views of a world moved and scaled so that the box ``[lower, upper]`` becomes centred at the
-    origin with its longest side ``side`` (the unit box the models are tuned for)."""
-    centre = (lower + upper) / 2.0
-    scale = side / float((upper - lower).max())
+def unit_box_transform(lower: torch.Tensor, upper: torch.Tensor, side: float = 1.0) -> Tuple[torch.Tensor, float]:
+    """Centre and scale that take the box ``[lower, upper]`` to a box at the origin whose longest side is
+    ``side`` (the unit box the models are tuned for): ``x' = (x - centre) * scale``."""
+    return (lower + upper) / 2.0, side / float((upper - lower).max())
+
+
+def normalise_cameras(cameras: Cameras, centre: torch.Tensor, scale: float) -> Cameras:
+    """The same views of a world moved by ``-centre`` and scaled by ``scale``."""
     c2w = cameras.c2w.clone()
     c2w[:, :, 3] = (c2w[:, :, 3] - centre) * scale
     # perspective intrinsics are scale-free; orthographic ones count pixels per world unit

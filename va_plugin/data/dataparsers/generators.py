@@ -25,7 +25,7 @@ from va_plugin.data import rigs
 from va_plugin.data.dataparsers.base import DataParser, DataParserConfig, DataparserOutputs, rescale_views
 from va_plugin.data.foreground import ColourKey, check_masks, colour_key_mask, composite, mask_from_image
 from va_plugin.data.images import read_image, split_alpha
-from va_plugin.data.visual_hull import normalise_cameras, visual_hull
+from va_plugin.data.visual_hull import normalise_cameras, unit_box_transform, visual_hull
 from va_plugin.errors import ConfigError, DataError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
@@ -202,8 +202,8 @@ class GeneratorDataParser(DataParser):
             raise DataError(f"{self.config.data}: the {len(cameras)} views' silhouettes share no volume under the "
                             f"{self.format_name} rig; is the format (--data-format) or rig option right?")
         if mode == "silhouettes":
-            cameras = normalise_cameras(cameras, *hull.bounds)
-            hull = visual_hull(cameras, silhouettes, self.config.hull_resolution)
+            centre, scale = unit_box_transform(*hull.bounds)
+            cameras, hull = normalise_cameras(cameras, centre, scale), hull.moved(centre, scale)
         iou = hull.silhouette_iou
         if sum(iou) / len(iou) < LOW_SILHOUETTE_IOU:
             warnings.warn(f"{self.config.data}: the masks agree poorly with the {self.format_name} rig (mean "
