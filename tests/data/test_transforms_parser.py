@@ -115,7 +115,8 @@ def test_missing_folder_and_format_detection(tmp_path):
 
 def test_datamanager_batches_carry_view_indices_and_foreground_share(tmp_path):
     root = write_scene(tmp_path / "s", n=3, size=(16, 16))
-    config = DataManagerConfig(dataparser=TransformsDataParserConfig(data=root), rays_per_batch=400,
+    # radius 4: the synthetic "object" (the top half of each image) must lie inside the bounding sphere
+    config = DataManagerConfig(dataparser=TransformsDataParserConfig(data=root, scene_radius=4.0), rays_per_batch=400,
                                foreground_fraction=1.0)
     dm = DataManager(config)
     rays, batch = dm.next_train(0)

@@ -2,13 +2,42 @@
 
 from __future__ import annotations
 
+import os
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Optional, Sequence, Tuple
+from typing import Iterator, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
 
 from va_plugin.errors import DataError
+
+
+@contextmanager
+def native_stderr_silenced() -> Iterator[None]:
+    """Silence file descriptor 2 for a moment: OpenCV and libpng print their own lines about a broken
+    file straight to it ("libpng error: ..."), where we raise one clear :class:`DataError` instead."""
+    try:
+        saved = os.dup(2)
+    except OSError:  # no stderr at all
+        yield
+        return
+    devnull = os.open(os.devnull, os.O_WRONLY)
+    try:
+        os.dup2(devnull, 2)
+        yield
+    finally:
+        os.dup2(saved, 2)
+        os.close(saved)
+        os.close(devnull)
+
+
+def decode_image(raw: np.ndarray, flags: int = cv2.IMREAD_UNCHANGED) -> Optional[np.ndarray]:
+    """``cv2.imdecode`` of the bytes of a file, None for a corrupt, truncated or non-image file, quietly."""
+    if raw.size == 0:
+        return None
+    with native_stderr_silenced():
+        return cv2.imdecode(raw, flags)
 
 
 def read_image(path: Path) -> np.ndarray:
@@ -21,7 +50,7 @@ def read_image(path: Path) -> np.ndarray:
     if not path.is_file():
         raise DataError(f"image not found: {path}")
     raw = np.fromfile(str(path), dtype=np.uint8)
-    image = cv2.imdecode(raw, cv2.IMREAD_UNCHANGED) if raw.size else None
+    image = decode_image(raw)
     if image is None:
         raise DataError(f"cannot decode image (corrupt, truncated or not an image): {path}")
     if image.dtype == np.uint16:

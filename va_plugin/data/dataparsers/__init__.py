@@ -6,7 +6,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable, Dict, Optional
 
-import cv2
+import numpy as np
 
 from va_plugin.data.dataparsers.base import DataParserConfig
 from va_plugin.data.dataparsers.generators import (IMAGE_SUFFIXES, SYNCDREAMER_LAYOUT, WONDER3D_LAYOUT,
@@ -14,6 +14,7 @@ from va_plugin.data.dataparsers.generators import (IMAGE_SUFFIXES, SYNCDREAMER_L
                                                    Wonder3DDataParserConfig, Zero123ppDataParserConfig,
                                                    wonder3d_file)
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.data.images import decode_image
 from va_plugin.data.rigs import RIG_VIEWS, WONDER3D_VIEWS
 from va_plugin.errors import DataError
 
@@ -31,7 +32,7 @@ def image_shape(path: Path) -> Optional[tuple]:
     """``(height, width)`` of an image file, or None when ``path`` is not a readable image."""
     if not (path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES):
         return None
-    image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image = decode_image(np.fromfile(str(path), dtype=np.uint8))
     return None if image is None else image.shape[:2]
 
 

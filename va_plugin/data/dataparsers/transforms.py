@@ -123,6 +123,9 @@ class TransformsDataParser(DataParser):
             matrix = np.asarray(frame["transform_matrix"], dtype=np.float64)
             if matrix.shape not in ((4, 4), (3, 4)):
                 raise DataError(f"{where}: transform_matrix must be 4x4, got shape {list(matrix.shape)}")
+            if matrix.shape == (4, 4) and not np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
+                raise DataError(f"{where}: transform_matrix is not a rigid transform (its last row is "
+                                f"{matrix[3].tolist()}, not [0, 0, 0, 1])")
             rgb, mask = split_alpha(image, self.config.background)
             images.append(rgb)
             masks.append(mask)
