@@ -126,6 +126,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     summary = ", ".join(f"{k} {record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record)
     print(f"trained {config.method_name} for {trainer.step} steps in {trainer.train_seconds:.1f} s ({summary}); "
           f"run folder {run_dir}")
+    health = trainer.guard.summary()
+    if health:
+        print(f"warning: {health}", file=sys.stderr)
     if args.export_mesh:
         from va_plugin.export.mesh import export_run_mesh
 

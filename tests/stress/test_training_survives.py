@@ -1,0 +1,147 @@
+"""Training that survives: all-background batches, NaN-poisoned batches, a learning rate 100x too
+high, parameters that turn non-finite, and a run that cannot be saved gives up with one clear line."""
+
+import json
+import warnings
+
+import pytest
+import torch
+
+from conftest import tiny_config
+from va_plugin.cli import train as train_cli
+from va_plugin.engine.health import TrainingDiverged
+from va_plugin.engine.trainer import list_checkpoints
+from va_plugin.errors import VAError
+from va_plugin.registry import discover_methods
+from va_plugin.rays import RayBundle
+
+METHODS = sorted(discover_methods())
+
+
+def all_finite(module) -> bool:
+    return all(bool(torch.isfinite(p).all()) for p in module.parameters())
+
+
+def records(run):
+    return [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
+
+
+@pytest.mark.parametrize("method", METHODS)
+def test_an_all_background_batch_through_every_model(method, tiny_scene, tmp_path):
+    """Rays that all miss the bound, with background targets: exactly the background, finite losses and
+    gradients (view-adaptive methods in their fusion phase, so every path runs)."""
+    trainer = tiny_config(method, tiny_scene, tmp_path, steps=2).setup()
+    model = trainer.model
+    if hasattr(model.field, "set_phase"):
+        model.field.set_phase(3)
+    model.train()
+    n = 16
+    directions = torch.nn.functional.normalize(torch.randn(n, 3) * 0.1 + torch.tensor([0.0, 0.0, 1.0]), dim=-1)
+    rays = RayBundle(torch.tensor([[0.0, 0.0, 3.0]]).expand(n, 3).clone(), directions, torch.arange(n) % 4)
+    outputs = model.get_outputs(rays)
+    assert torch.equal(outputs["rgb"], model.background.expand(n, 3))
+    assert torch.equal(outputs["accumulation"], torch.zeros(n, 1))
+    losses = model.get_loss_dict(outputs, {"rgb": torch.ones(n, 3), "mask": torch.zeros(n, 1)})
+    loss = sum(losses.values())
+    loss.backward()
+    assert bool(torch.isfinite(loss))
+    assert all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in model.parameters())
+
+
+def poison(trainer, bad_steps):
+    real = trainer.pipeline.datamanager.next_train
+
+    def poisoned(step):
+        rays, batch = real(step)
+        if step in bad_steps:
+            batch["rgb"] = torch.full_like(batch["rgb"], float("nan"))
+        return rays, batch
+
+    trainer.pipeline.datamanager.next_train = poisoned
+
+
+def test_nan_batches_in_va_neus_are_skipped_with_one_warning(tiny_scene, tmp_path):
+    trainer = tiny_config("va-neus", tiny_scene, tmp_path, steps=4, **{
+        "pipeline.model.field.skip_consistent_scenes": "false",
+        "pipeline.model.field.diagnostics_scale": 0}).setup()
+    poison(trainer, {1, 3})  # one in phase 1, one in phase 3
+    with pytest.warns(UserWarning) as caught:
+        trainer.train()
+    assert len([w for w in caught if "skipped" in str(w.message)]) == 1
+    assert trainer.bad_steps == 2 and trainer.guard.restores == 0 and all_finite(trainer.model)
+    assert [r["bad_steps"] for r in records(tmp_path) if "loss" in r] == [0, 1, 1, 2]
+
+
+def test_va_neus_at_100x_learning_rate_survives(tiny_scene, tmp_path):
+    """The blow-up is rolled back to the last good state with a lower learning rate (warned once),
+    the fall of inv_s is warned about once and logged, and the run ends with finite parameters and a
+    mesh, or the one-line 'no surface' error."""
+    from va_plugin.export.mesh import extract_mesh
+
+    overrides = {"scheduler.warmup_steps": 0, "pipeline.model.field.skip_consistent_scenes": "false",
+                 "pipeline.model.field.diagnostics_scale": 0}
+    trainer = tiny_config("va-neus", tiny_scene, tmp_path, steps=9, **overrides).setup()
+    for group in trainer.config.optimizers.values():
+        group.lr *= 100
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        trainer.train()
+    messages = [str(w.message) for w in caught]
+    assert sum("restored the state" in m for m in messages) == 1
+    assert sum("inv_s fell" in m for m in messages) == 1
+    assert trainer.guard.restores >= 1 and trainer.guard.lr_scale < 1.0
+    assert all_finite(trainer.model)
+    logged = [r for r in records(tmp_path) if "loss" in r]
+    assert any(r["inv_s_below_start"] for r in logged) and logged[-1]["restores"] == trainer.guard.restores
+    assert trainer.guard.summary() is not None
+    try:
+        mesh = extract_mesh(trainer.model, resolution=24, with_color=False)
+        assert len(mesh.faces) > 0
+    except VAError as exc:
+        assert "no surface" in str(exc)
+
+
+def test_a_healthy_run_is_untouched_by_the_guard(tiny_scene, tmp_path):
+    trainer = tiny_config("neus", tiny_scene, tmp_path, steps=3).setup()
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # no warning at all
+        trainer.train()
+    assert trainer.guard.summary() is None and trainer.guard.lr_scale == 1.0
+    assert [r["inv_s_below_start"] for r in records(tmp_path)] == [False, False, False]
+
+
+def test_parameters_turned_non_finite_are_restored(tiny_scene, tmp_path):
+    trainer = tiny_config("neus", tiny_scene, tmp_path, steps=4).setup()
+    real_step = trainer.optimizer.step
+    calls = []
+
+    def broken_step(*args, **kwargs):
+        real_step(*args, **kwargs)
+        calls.append(1)
+        if len(calls) == 2:
+            with torch.no_grad():
+                next(trainer.model.parameters()).fill_(float("inf"))
+
+    trainer.optimizer.step = broken_step
+    with pytest.warns(UserWarning, match="parameters turned non-finite"):
+        trainer.train()
+    assert trainer.guard.restores == 1 and trainer.guard.lr_scale == 0.5 and all_finite(trainer.model)
+
+
+def test_a_hopeless_run_stops_with_one_line_and_no_checkpoint(tiny_scene, tmp_path, capsys):
+    run = tmp_path / "run"
+    code = train_cli.main(["neus", "--data", str(tiny_scene), "--output-dir", str(run), "--steps", "40",
+                           "--no-progress", "--device", "cpu", "--set", "pipeline.datamanager.rays_per_batch=16",
+                           "--set", "pipeline.model.n_samples=8", "--set", "pipeline.model.n_importance=8",
+                           "--set", "optimizers.fields.lr=1e36", "--set", "scheduler.warmup_steps=0",
+                           "--set", "health.max_restores=2", "--set", "health.max_skips_in_a_row=2"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2
+    assert err[-1].startswith("error: training diverged") and "lower the learning rate" in err[-1]
+    assert list_checkpoints(run) == []  # nothing that looks like a usable run
+
+
+def test_guard_options_are_checked(tiny_scene, tmp_path):
+    with pytest.raises(VAError, match="lr_backoff"):
+        tiny_config("neus", tiny_scene, tmp_path, steps=1, **{"health.lr_backoff": 1.5}).setup()
+    assert issubclass(TrainingDiverged, VAError)
