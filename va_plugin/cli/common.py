@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import os
 import sys
+import warnings
 from pathlib import Path
 from typing import Callable
 
@@ -19,6 +20,8 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
 
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
+        shown = warnings.showwarning
+        warnings.showwarning = _one_line_warning
         try:
             return main(*args, **kwargs)
         except VAError as exc:
@@ -27,8 +30,15 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
         except KeyboardInterrupt:
             print("interrupted", file=sys.stderr)
             return EXIT_INTERRUPTED
+        finally:
+            warnings.showwarning = shown
 
     return wrapper
+
+
+def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings on the command line as ``warning: <message>``, without the source line."""
+    print(f"warning: {message}", file=sys.stderr if file is None else file)
 
 
 def cache_dir() -> Path:

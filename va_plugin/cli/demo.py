@@ -15,6 +15,7 @@ from typing import List, Optional
 import numpy as np
 
 from va_plugin.cli.common import EXIT_INTERRUPTED, cache_dir, friendly_errors
+from va_plugin.cli.train import build_parser as build_train_parser
 from va_plugin.cli.train import make_config
 from va_plugin.registry import discover_methods
 
@@ -45,10 +46,10 @@ def contact_sheet(frames: List[Path], out: Path, columns: int = 8) -> Path:
 def main(argv: Optional[List[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     methods = discover_methods()
-    train_args = argparse.Namespace(method=args.method, preset=args.preset, data=None, data_format="auto",
-                                    output_dir=args.output_dir, steps=args.steps, seed=None, device=args.device,
-                                    no_progress=args.no_progress, overrides=[],
-                                    default_scene_resolution=args.resolution)
+    # va-train's own defaults for every flag the demo does not have (generator options, seed, ...)
+    train_args = build_train_parser(methods).parse_args([args.method])
+    train_args.__dict__.update(preset=args.preset, output_dir=args.output_dir, steps=args.steps, device=args.device,
+                               no_progress=args.no_progress, default_scene_resolution=args.resolution)
     config = make_config(train_args, methods)
     scene_dir = cache_dir() / f"default-scene-{args.resolution}"
     print(f"default scene: {scene_dir}")

@@ -41,7 +41,9 @@ def main(argv: Optional[List[str]] = None) -> int:
     result = evaluate_run(pipeline, state, args.scene, args.mesh_resolution, args.image_scale, args.max_views,
                           progress=not args.no_progress)
     output = args.output if args.output is not None else args.load_dir / "eval.json"
-    output.write_text(json.dumps(result, indent=2))
+    tmp = output.with_name(output.name + ".tmp")  # a killed va-eval leaves no half-written eval.json
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(output)
     shown = ", ".join(f"{k} {result[k]:.4g}" for k in ("psnr", "ssim", "lpips", "cd", "iou", "fscore") if k in result)
     print(f"{shown}; written to {output}")
     return 0

@@ -42,6 +42,11 @@ def main(argv: Optional[List[str]] = None) -> int:
 
     if getattr(args, "resolution", 2) < 2 or getattr(args, "frames", 1) < 1 or getattr(args, "scale", 1.0) <= 0:
         raise ConfigError("--resolution must be at least 2, --frames at least 1 and --scale positive")
+    if args.what == "mesh" and args.output is not None:
+        from va_plugin.export.mesh import MESH_FORMATS
+
+        if args.output.suffix.lower() not in MESH_FORMATS:  # before minutes of marching cubes, not after
+            raise ConfigError(f"unknown mesh format {args.output.suffix!r}; use one of {', '.join(MESH_FORMATS)}")
     pipeline, _ = load_run(args.load_dir, device=args.device)
     if args.what == "mesh":
         from va_plugin.export.mesh import extract_mesh, write_mesh

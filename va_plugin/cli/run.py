@@ -18,6 +18,11 @@ def load_run(run_dir: Path, device: Optional[str] = None) -> Tuple[Pipeline, Dic
     config = state.get("config_object")
     if config is None:
         raise CheckpointError(f"{state['path']} carries no config; it was not written by va-train")
+    bad = [name for name, value in state["model"].items()
+           if hasattr(value, "is_floating_point") and value.is_floating_point() and not bool(value.isfinite().all())]
+    if bad:
+        raise CheckpointError(f"{state['path']} holds NaN or infinite values ({bad[0]}{' and more' if len(bad) > 1 else ''}): "
+                              "the run diverged; retrain it (or resume from a checkpoint before the divergence)")
     config = copy.deepcopy(config)
     torch_device = pick_device(device if device is not None else "auto")
     pipeline = config.pipeline.setup(device=torch_device, max_steps=config.max_steps)

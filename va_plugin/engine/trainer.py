@@ -107,8 +107,10 @@ def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> Dict[str, Any]:
             state["path"] = str(path)
             return state
         except Exception as exc:  # a corrupt file can raise nearly anything while unpickling
-            problems.append(f"{path.name} ({type(exc).__name__})")
-    raise CheckpointError(f"no readable checkpoint in {run_dir}: {'; '.join(problems)}")
+            detail = str(exc).strip().splitlines()[0][:80] if str(exc).strip() else ""
+            problems.append(f"{path.name} ({type(exc).__name__}{': ' + detail if detail else ''})")
+    raise CheckpointError(f"no readable checkpoint in {run_dir} (corrupt, truncated, or not written by va-train): "
+                          f"{'; '.join(problems)}")
 
 
 class Trainer:

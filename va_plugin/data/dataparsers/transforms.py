@@ -141,6 +141,10 @@ class TransformsDataParser(DataParser):
         cameras, images_np, masks_np = rescale_views(cameras, np.stack(images), np.stack(masks) if has_masks else None,
                                                      self.config.image_scale)
         radius = float(meta.get("scene_radius", self.config.scene_radius))
+        chosen = float(self.config.scene_radius)
+        if "scene_radius" in meta and chosen not in (radius, DataParserConfig.scene_radius):
+            raise DataError(f"contradictory scene radius: {json_path.name} says {radius:g}, the options say "
+                            f"{chosen:g}; change scene_radius in the json, or drop the option")
         metadata = {"json": str(json_path)}
         scene_root = json_path.parent
         for name in ("scene.json",):
