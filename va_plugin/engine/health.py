@@ -5,7 +5,7 @@ The trainer asks a :class:`TrainingGuard` about every step:
 * a loss or gradient that is NaN or infinite: the step is skipped (no optimizer update);
 * a loss that jumps far above its running level (a blow-up, e.g. from a learning rate far too
   high), parameters that turned non-finite after an update, or too many skipped steps in a row:
-  the last good state (model and optimizer, kept in memory every ``snapshot_every`` steps) is
+  the last good state (parameters and optimizer state, kept in memory every ``snapshot_every`` steps) is
   restored and the learning rates are multiplied by ``lr_backoff``;
 * inv_s (NeuS's sharpness) falling below its value at the start of training: a sign of divergence,
   reported once as a warning and in every log record (``inv_s_below_start``).
@@ -135,9 +135,13 @@ class TrainingGuard:
     # -- last good state ------------------------------------------------------------------------------
     def maybe_snapshot(self, step: int, model: torch.nn.Module, optimizer: torch.optim.Optimizer,
                        force: bool = False) -> None:
-        """Keep a copy of the current (good) state every ``snapshot_every`` steps."""
+        """Keep a copy of the current (good) parameters and optimizer state every ``snapshot_every`` steps.
+
+        Buffers are not copied: they hold schedules and bookkeeping (a training phase, an occupancy
+        grid) that follow the step, which a restore does not rewind."""
         if force or self._snapshot is None or step % self.config.snapshot_every == 0:
-            self._snapshot = {"step": step, "model": copy.deepcopy(model.state_dict()),
+            self._snapshot = {"step": step,
+                              "parameters": {k: v.detach().clone() for k, v in model.named_parameters()},
                               "optimizer": copy.deepcopy(optimizer.state_dict())}
 
     def restore(self, step: int, model: torch.nn.Module, optimizer: torch.optim.Optimizer) -> None:
@@ -149,7 +153,9 @@ class TrainingGuard:
                 f"training diverged at step {step} ({self.reason}) and kept diverging after {self.restores - 1} "
                 f"restores with the learning rate lowered to {self.lr_scale:.3g} of its value; lower the "
                 "learning rate (e.g. --set optimizers.fields.lr=...) or check the inputs")
-        model.load_state_dict(self._snapshot["model"])
+        with torch.no_grad():
+            for name, value in model.named_parameters():
+                value.copy_(self._snapshot["parameters"][name])
         optimizer.load_state_dict(copy.deepcopy(self._snapshot["optimizer"]))
         self.lr_scale *= self.config.lr_backoff
         self.warn_once("restore", f"step {step}: {self.reason}; restored the state after step {self._snapshot['step']} "
