@@ -1,0 +1,264 @@
+"""The command line shared by the benchmark scripts, the loop over rows, progress and the summary.
+
+A script describes an :class:`Experiment`: how to plan its rows from the preset and the flags, and how
+to write its report from the finished rows. :func:`main` does the rest: scenes into the cache, each row
+trained and evaluated (or skipped with ``--resume`` when it finished before), reports rewritten after
+every row so that partial results are readable, and a summary at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import dataclasses
+import shlex
+import sys
+import time
+from dataclasses import dataclass
+from datetime import datetime
+from pathlib import Path
+from typing import Any, Callable, Dict, List, Optional, Sequence
+
+from va_plugin.bench.presets import BACKBONES, PRESETS, BenchPreset, get_preset
+from va_plugin.bench.report import fmt, machine_info
+from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, run_steps
+from va_plugin.bench.scenes import ensure_scene, expand_scene_names
+from va_plugin.bench.store import ResultStore
+from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
+from va_plugin.errors import ConfigError
+
+REPO = Path(__file__).resolve().parents[2]
+DEFAULT_GSO_ROOT = REPO.parent / "shared" / "data" / "gso"
+
+
+@dataclass
+class Experiment:
+    name: str
+    """Short name: output files are ``OUT/<name>.md|.csv|.json``; default folder outputs/bench/<name>-<preset>."""
+    title: str
+    description: str
+    plan: Callable[[BenchPreset, argparse.Namespace, List[str]], List[RowSpec]]
+    """(preset, parsed flags, scene sources) -> the rows, in the order they run."""
+    report: Callable[[List[Dict[str, Any]], Path, Dict[str, Any]], List[Path]]
+    """(finished rows in plan order, out folder, meta) -> files written (the Markdown report first)."""
+    add_arguments: Optional[Callable[[argparse.ArgumentParser], None]] = None
+    axis_scenes: bool = False
+    """Default scenes: the preset's ``axis_scenes`` (experiments with 4 runs per method and scene)."""
+    fixed: Sequence[str] = ()
+    """Scene settings the experiment varies itself, so their flags are not offered ("level", "views")."""
+    default_backbones: str = "neus,ngp"
+
+
+def comma_list(text: str, kind=str) -> List[Any]:
+    try:
+        return [kind(part.strip()) for part in text.split(",") if part.strip()]
+    except ValueError:
+        raise ConfigError(f"expected a comma-separated list of {kind.__name__}, got {text!r}") from None
+
+
+def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(description=experiment.description,
+                                     formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--preset", default="quick", choices=sorted(PRESETS),
+                        help="; ".join(f"{p.name}: {p.description}" for p in PRESETS.values()))
+    parser.add_argument("--out", type=Path, default=None,
+                        help=f"results folder (default outputs/bench/{experiment.name}-PRESET); scenes are "
+                             "cached in OUT/scenes, runs go to OUT/runs")
+    parser.add_argument("--data-root", type=Path, default=DEFAULT_GSO_ROOT,
+                        help="folder of the Google Scanned Objects (default ../shared/data/gso)")
+    parser.add_argument("--scenes", default=None,
+                        help="comma-separated: NAME (procedural), gso:NAME, mesh:PATH, or the groups "
+                             "procedural and gso (default: the preset's)")
+    if "level" not in experiment.fixed:
+        parser.add_argument("--level", type=int, default=None, help="inconsistency level 0-3 (default: the preset's, 2)")
+    if "views" not in experiment.fixed:
+        parser.add_argument("--views", type=int, default=None, help="input views 4, 8, 12 or 16 (default 4)")
+    parser.add_argument("--backbones", default=experiment.default_backbones,
+                        help=f"comma-separated, of {', '.join(BACKBONES)} (default {experiment.default_backbones})")
+    parser.add_argument("--steps", type=int, default=None, help="step budget of every run (default: the preset's)")
+    parser.add_argument("--seed", type=int, default=42, help="seed of the scenes' inconsistency and of training")
+    parser.add_argument("--force-adaptive", action="store_true",
+                        help="run the adaptive phases even on scenes whose inputs look consistent "
+                             "(pipeline.model.field.skip_consistent_scenes=false)")
+    parser.add_argument("--device", default="auto", help="auto, cpu or cuda[:N]")
+    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    parser.add_argument("--resume", action="store_true",
+                        help="skip the rows OUT already holds (same settings); continue an interrupted row")
+    if experiment.add_arguments is not None:
+        experiment.add_arguments(parser)
+    return parser
+
+
+def preset_from_args(args: argparse.Namespace) -> BenchPreset:
+    """The named preset with the flags that change it applied."""
+    preset = get_preset(args.preset)
+    changes: Dict[str, Any] = {}
+    if args.scenes is not None:
+        names = tuple(comma_list(args.scenes))
+        changes.update(scenes=names, axis_scenes=names)
+    if getattr(args, "level", None) is not None:
+        changes["level"] = args.level
+    if getattr(args, "views", None) is not None:
+        changes["views"] = args.views
+    if args.steps is not None:
+        if args.steps < 1:
+            raise ConfigError(f"--steps must be at least 1, got {args.steps}")
+        changes["steps"] = {backbone: args.steps for backbone in BACKBONES}
+    return dataclasses.replace(preset, **changes)
+
+
+def backbones_from_args(args: argparse.Namespace) -> List[str]:
+    backbones = comma_list(args.backbones)
+    unknown = [b for b in backbones if b not in BACKBONES]
+    if unknown or not backbones:
+        raise ConfigError(f"--backbones takes {', '.join(BACKBONES)}; got {args.backbones!r}")
+    return backbones
+
+
+def adaptive_overrides(args: argparse.Namespace) -> tuple:
+    return ("pipeline.model.field.skip_consistent_scenes=false",) if args.force_adaptive else ()
+
+
+def duration(seconds: float) -> str:
+    seconds = int(round(seconds))
+    hours, rest = divmod(seconds, 3600)
+    return f"{hours}h{rest // 60:02d}m" if hours else f"{rest // 60}m{rest % 60:02d}s"
+
+
+class Progress:
+    """Elapsed time and an estimate of the rest, from the seconds per training step of the rows run so far
+    (evaluation and scene building included)."""
+
+    def __init__(self, budgets: Sequence[int]) -> None:
+        self.started = time.perf_counter()
+        self.budgets = list(budgets)
+        self.remaining = set(range(len(budgets)))
+        self.steps_done = 0
+        self.seconds_spent = 0.0
+
+    def elapsed(self) -> float:
+        return time.perf_counter() - self.started
+
+    def skip(self, index: int) -> None:
+        self.remaining.discard(index)
+
+    def finish(self, index: int, seconds: float) -> None:
+        self.remaining.discard(index)
+        self.steps_done += self.budgets[index]
+        self.seconds_spent += seconds
+
+    def estimate(self) -> str:
+        if not self.steps_done:
+            return "no estimate yet"
+        left = sum(self.budgets[i] for i in self.remaining) * self.seconds_spent / self.steps_done
+        return f"about {duration(left)} left"
+
+    def prefix(self, index: int) -> str:
+        return f"[row {index + 1}/{len(self.budgets)} | {duration(self.elapsed())} elapsed, {self.estimate()}]"
+
+
+def describe(result: Dict[str, Any]) -> str:
+    parts = [f"PSNR {fmt(result.get('psnr'), 'psnr')}", f"CD {fmt(result.get('cd'), 'cd')}",
+             f"IoU {fmt(result.get('iou'), 'iou')}", f"train {result['train_seconds']:.0f} s"]
+    if result["adaptive"]:
+        parts.append("adaptive phases ran" if result.get("adaptive_ran") else "adaptive phases skipped")
+    if result.get("error"):
+        parts.append(f"note: {result['error']}")
+    return ", ".join(parts)
+
+
+def _settings(preset: BenchPreset, rows: List[RowSpec]) -> str:
+    scenes = ", ".join(dict.fromkeys(r.scene.name for r in rows))
+    steps = ", ".join(f"{b} {run_steps(r, preset)}" for b, r in
+                      {r.backbone: r for r in rows}.items())
+    levels = sorted({r.scene.level for r in rows})
+    views = sorted({r.scene.views for r in rows})
+    return (f"scenes: {scenes}; level {', '.join(map(str, levels))}; {', '.join(map(str, views))} input views at "
+            f"{preset.resolution} px; steps per run: {steps} (method preset: {preset.method_preset or 'default'}); "
+            f"{preset.curve_points} checkpoints evaluated along each run")
+
+
+def run_experiment(experiment: Experiment, args: argparse.Namespace, command: str) -> int:
+    preset = preset_from_args(args)
+    if args.threads > 0:
+        import torch
+
+        torch.set_num_threads(args.threads)
+    out = (args.out if args.out is not None else Path("outputs") / "bench" / f"{experiment.name}-{preset.name}")
+    out = out.resolve()
+    scene_names = preset.axis_scenes if experiment.axis_scenes else preset.scenes
+    sources = expand_scene_names(scene_names, args.data_root)
+    if not sources:
+        raise ConfigError("no scenes to run")
+    rows = experiment.plan(preset, args, sources)
+    store = ResultStore(out, args.resume)
+    budgets = [run_steps(row, preset) for row in rows]
+    progress = Progress(budgets)
+    meta: Dict[str, Any] = {"experiment": experiment.name, "title": experiment.title, "command": command,
+                            "date": datetime.now().strftime("%Y-%m-%d %H:%M"), "preset": preset.name,
+                            "preset_description": preset.description, "settings": _settings(preset, rows),
+                            "machine": machine_info(), "rows_planned": len(rows)}
+    meta["machine"]["load_average_start"] = meta["machine"].pop("load_average", None)
+    print(f"{experiment.title}: {len(rows)} rows, preset {preset.name}, results in {out}", flush=True)
+    results: Dict[str, Dict[str, Any]] = {}
+    written: List[Path] = []
+    skipped = 0
+
+    def write_reports() -> List[Path]:
+        done = [results[r.key] for r in rows if r.key in results]
+        meta.update(rows_done=len(done), rows_run=len(done) - skipped, wall=duration(progress.elapsed()))
+        meta["machine"]["load_average_end"] = machine_info().get("load_average")
+        return experiment.report(done, out, meta)
+
+    for index, row in enumerate(rows):
+        scene_dir = out / "scenes" / row.scene.folder_name
+        if not (scene_dir / "scene.json").is_file():
+            print(f"{progress.prefix(index)} building scene {row.scene.name} (level {row.scene.level}, "
+                  f"{row.scene.views} views, {row.scene.resolution} px)", flush=True)
+        row_started = time.perf_counter()
+        scene_dir = ensure_scene(row.scene, out / "scenes", args.data_root)
+        config = row_config(row, preset, scene_dir, out / "runs" / row.key, args.seed, args.device)
+        row_fingerprint = fingerprint(config, preset.evaluation, out)
+        stored = store.finished(row.key, row_fingerprint)
+        if stored is not None:
+            results[row.key] = stored
+            progress.skip(index)
+            skipped += 1
+            print(f"{progress.prefix(index)} {row.scene.name}: {row.label}: finished earlier, skipped", flush=True)
+            continue
+        print(f"{progress.prefix(index)} {row.scene.name}: {row.label} ({row.method}, {config.max_steps} steps)",
+              flush=True)
+        config.progress = sys.stderr.isatty()
+        try:
+            result = run_row(row, config, scene_dir, preset.evaluation, row_fingerprint)
+        except KeyboardInterrupt:
+            if results:
+                write_reports()
+            print(f"\ninterrupted in row {index + 1} ({row.key}); finished rows are kept in {store.path}. "
+                  "Rerun the same command with --resume to continue.", file=sys.stderr)
+            return EXIT_INTERRUPTED
+        store.add(result)
+        results[row.key] = result
+        progress.finish(index, time.perf_counter() - row_started)
+        print(f"    done in {duration(time.perf_counter() - row_started)}: {describe(result)}", flush=True)
+        written = write_reports()
+    written = write_reports()
+    ran = len(rows) - skipped
+    print(f"\n{experiment.title}: {ran} rows run, {skipped} skipped as finished, in {duration(progress.elapsed())}")
+    if written:
+        print(Path(written[0]).read_text())
+        print("files: " + ", ".join(str(p) for p in written))
+    return 0
+
+
+def main(experiment: Experiment, argv: Optional[List[str]] = None, script: Optional[str] = None) -> int:
+    """Parse the flags and run the experiment (``error: ...`` and exit 2 on bad input, 130 on Ctrl-C)."""
+    arguments = sys.argv[1:] if argv is None else list(argv)
+    command = " ".join(["python", script or f"benchmarks/run_{experiment.name}.py",
+                        *(shlex.quote(a) for a in arguments)])
+
+    @friendly_errors
+    def entry() -> int:
+        args = build_parser(experiment).parse_args(arguments)
+        return run_experiment(experiment, args, command)
+
+    return entry()

@@ -1,0 +1,103 @@
+"""Benchmark presets: which scenes, how long each run trains, and how it is evaluated.
+
+``smoke`` checks the plumbing in well under two minutes (the test suite runs it); ``quick`` gives a first
+paired comparison on three level-2 scenes in about twenty minutes on 2 idle CPU cores; ``full`` is the
+protocol of the paper's Sec. 4.1 as far as this machine allows: every procedural object and every
+Google Scanned Object under ``--data-root``, with each method's default step budget.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Optional, Tuple
+
+from va_plugin.errors import ConfigError
+
+BACKBONES: Dict[str, Tuple[str, str]] = {"neus": ("neus", "va-neus"), "ngp": ("ngp", "va-ngp")}
+"""backbone -> (original method, view-adaptive method), as registered."""
+
+BACKBONE_TITLES = {"neus": "NeuS", "ngp": "InstantNGP"}
+
+
+@dataclass(frozen=True)
+class EvalSettings:
+    """Arguments of :func:`va_plugin.eval.evaluate.evaluate_run` (the evaluation behind ``va-eval``)."""
+
+    image_scale: float = 1.0
+    """Held-out views are rendered (and their ground truth resized) at this fraction of the scene's size."""
+    max_views: Optional[int] = None
+    """Held-out views scored (the first ones of the scene's test split; None: all)."""
+    mesh_resolution: int = 128
+    """Marching-cubes grid of the run's mesh."""
+    n_samples: int = 100_000
+    """Surface samples per mesh for Chamfer distance and F-score."""
+
+
+@dataclass
+class BenchPreset:
+    name: str
+    description: str
+    scenes: Tuple[str, ...]
+    """Scenes of run_table1 and run_ablation (names as ``--scenes`` takes them)."""
+    axis_scenes: Tuple[str, ...]
+    """Scenes of run_views and run_sweep, which train every method 4 times per scene."""
+    evaluation: EvalSettings
+    resolution: int = 256
+    """Image side of the scenes (the paper's 256)."""
+    scene_mesh_resolution: int = 160
+    """Marching-cubes grid of the procedural objects' ground truth."""
+    level: int = 2
+    """Inconsistency level (2: calibrated to real SyncDreamer outputs)."""
+    views: int = 4
+    """Input views (the paper's 4)."""
+    method_preset: Optional[str] = None
+    """Registry preset applied to every method ("fast", "accurate"; None: each method's default)."""
+    steps: Dict[str, int] = field(default_factory=dict)
+    """Step budget per backbone; a backbone missing here keeps its method's (or method preset's)."""
+    overrides: Dict[str, Tuple[str, ...]] = field(default_factory=dict)
+    """Config overrides per backbone ("*": every backbone), applied to original and adaptive alike."""
+    curve_points: int = 4
+    """Checkpoints evaluated along each run for the time-vs-error plot (the last is the row itself)."""
+    view_counts: Tuple[int, ...] = (4, 8, 12, 16)
+    """Input view counts of run_views (the paper's Fig. 5)."""
+    levels: Tuple[int, ...] = (0, 1, 2, 3)
+    """Inconsistency levels of run_sweep."""
+
+    def overrides_for(self, backbone: str) -> Tuple[str, ...]:
+        return tuple(self.overrides.get("*", ())) + tuple(self.overrides.get(backbone, ()))
+
+
+PRESETS: Dict[str, BenchPreset] = {
+    "smoke": BenchPreset(
+        name="smoke",
+        description="plumbing check: one 32-px scene, 3 steps per run, tiny evaluation (under 2 minutes)",
+        scenes=("mug",), axis_scenes=("mug",), resolution=32, scene_mesh_resolution=48,
+        steps={"neus": 3, "ngp": 3},
+        overrides={"*": ("pipeline.datamanager.rays_per_batch=32",),
+                   "neus": ("pipeline.model.n_samples=8", "pipeline.model.n_importance=8"),
+                   # 3 steps leave no density above the default threshold: without this there is no mesh
+                   "ngp": ("pipeline.model.n_samples=16", "pipeline.model.density_threshold=0.5")},
+        # LPIPS-Alex needs at least 31 px, hence 32-px scenes rather than 16
+        evaluation=EvalSettings(image_scale=1.0, max_views=1, mesh_resolution=24, n_samples=2000),
+        curve_points=2, view_counts=(4, 8), levels=(0, 2)),
+    "quick": BenchPreset(
+        name="quick",
+        description="three level-2 procedural scenes at 256 px, each method's 'fast' preset "
+                    "(about 20 minutes on 2 idle cores)",
+        scenes=("mug", "knot", "chair"), axis_scenes=("mug",), method_preset="fast",
+        evaluation=EvalSettings(image_scale=0.25, max_views=4, mesh_resolution=96, n_samples=100_000),
+        curve_points=3),
+    "full": BenchPreset(
+        name="full",
+        description="every procedural object and every GSO object under --data-root, each method's default "
+                    "budget (hours)",
+        scenes=("procedural", "gso"), axis_scenes=("mug", "knot", "robot", "gso:alarm", "gso:lion"),
+        evaluation=EvalSettings(image_scale=0.5, max_views=None, mesh_resolution=128, n_samples=100_000),
+        curve_points=5),
+}
+
+
+def get_preset(name: str) -> BenchPreset:
+    if name not in PRESETS:
+        raise ConfigError(f"unknown benchmark preset {name!r}; known: {', '.join(PRESETS)}")
+    return PRESETS[name]

@@ -1,0 +1,196 @@
+"""One benchmark row: one method trained on one scene, then evaluated, all through the library.
+
+The config comes from the registry (``get_method(method).make_config(preset)``), overrides go through
+:func:`va_plugin.config.apply_override`, training is ``config.setup().train()`` and evaluation is
+:func:`va_plugin.eval.evaluate.evaluate_run`, the function behind ``va-eval``. The original and the
+view-adaptive method of a backbone get the same scene folder, seed, step budget and overrides: the only
+difference between a pair is the field wrapper (and the adaptive method's own optimizer group).
+
+Checkpoints are written every ``max_steps // curve_points`` steps; after training each one is evaluated,
+which gives error against training seconds along the run (checkpoint writing and evaluation are outside
+the trainer's clock). Only the last checkpoint is kept. A row interrupted during training continues from
+its newest checkpoint when rerun with the same settings.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import json
+import re
+import shutil
+import time
+import warnings
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Dict, List, Optional, Tuple
+
+import torch
+
+from va_plugin.bench.presets import BACKBONE_TITLES, BACKBONES, BenchPreset, EvalSettings
+from va_plugin.bench.scenes import SceneSpec, input_error
+from va_plugin.config import apply_override, config_digest
+from va_plugin.engine.trainer import list_checkpoints
+from va_plugin.errors import VAError
+from va_plugin.registry import get_method
+
+ROW_FILE = "bench_row.json"
+"""In a row's run folder: the row's key and settings fingerprint (a rerun resumes only a matching run)."""
+
+ADAPTIVE_OVERRIDES = ("pipeline.model.field.diagnostics_scale=0",)
+"""The diagnostics pictures are written after the last step, inside the trainer's clock; a benchmark row
+measures training time, so they are off (``va-export diagnostics`` writes them for any run)."""
+
+METRICS = ("psnr", "ssim", "lpips", "cd", "iou", "fscore")
+
+
+@dataclass(frozen=True)
+class RowSpec:
+    """What one row trains: a backbone, original or view-adaptive, on a scene, with extra overrides."""
+
+    experiment: str
+    scene: SceneSpec
+    backbone: str
+    adaptive: bool
+    variant: str = ""
+    """Label of the row in its table (default: "Original NeuS", "View-adaptive NeuS", ...)."""
+    overrides: Tuple[str, ...] = ()
+
+    @property
+    def method(self) -> str:
+        return BACKBONES[self.backbone][int(self.adaptive)]
+
+    @property
+    def label(self) -> str:
+        if self.variant:
+            return self.variant
+        return f"{'View-adaptive' if self.adaptive else 'Original'} {BACKBONE_TITLES.get(self.backbone, self.backbone)}"
+
+    @property
+    def key(self) -> str:
+        slug = re.sub(r"[^A-Za-z0-9]+", "-", self.label).strip("-").lower()
+        return f"{self.scene.folder_name}/{self.method}/{slug}"
+
+
+def row_config(row: RowSpec, preset: BenchPreset, scene_dir: Path, run_dir: Path, seed: int = 42,
+               device: str = "auto"):
+    """The trainer config of a row (see the module docstring)."""
+    config = get_method(row.method).make_config(preset.method_preset)
+    config.pipeline.datamanager.dataparser.data = Path(scene_dir)
+    config.output_dir = Path(run_dir)
+    if row.backbone in preset.steps:
+        config.max_steps = preset.steps[row.backbone]
+    config.seed = seed
+    config.device = device
+    config.progress = False
+    every = max(1, config.max_steps // max(1, preset.curve_points))
+    config.checkpoint_every = every
+    config.keep_checkpoints = config.max_steps // every + 10  # room for interrupt checkpoints
+    extra = ADAPTIVE_OVERRIDES if row.adaptive else ()
+    for assignment in (*preset.overrides_for(row.backbone), *extra, *row.overrides):
+        apply_override(config, assignment)
+    return config
+
+
+def fingerprint(config, evaluation: EvalSettings, out: Path) -> str:
+    """A short hash of everything that decides a row's result (paths under ``out`` written relatively,
+    so a moved benchmark folder still resumes)."""
+    text = config_digest(config).replace(str(Path(out).resolve()), "<out>")
+    text += json.dumps(asdict(evaluation), sort_keys=True)
+    return hashlib.sha1(text.encode()).hexdigest()[:16]
+
+
+def evaluate_state(pipeline, state: Dict[str, Any], scene_dir: Path, evaluation: EvalSettings) -> Dict[str, Any]:
+    """``evaluate_run`` of a loaded state; when the run has no mesh to score (no surface, or one that
+    encloses nothing) the image metrics are kept and the geometry metrics are NaN, with the reason."""
+    from va_plugin.eval.evaluate import evaluate_run, image_metrics
+
+    with warnings.catch_warnings():
+        warnings.filterwarnings("ignore", message=".*not watertight.*")
+        try:
+            return evaluate_run(pipeline, state, scene_dir, evaluation.mesh_resolution, evaluation.image_scale,
+                                evaluation.max_views, evaluation.n_samples, progress=False)
+        except (VAError, ValueError) as exc:
+            result = {"method": state.get("method_name"), "steps": int(state["step"]),
+                      "train_seconds": float(state.get("train_seconds", 0.0)),
+                      "cd": float("nan"), "iou": float("nan"), "fscore": float("nan"), "error": str(exc)}
+            result.update(image_metrics(pipeline, evaluation.image_scale, evaluation.max_views, progress=False))
+            return result
+
+
+def evaluate_checkpoints(pipeline, run_dir: Path, scene_dir: Path, evaluation: EvalSettings, every: int,
+                         max_steps: int) -> List[Dict[str, Any]]:
+    """Evaluate the run's checkpoints at multiples of ``every`` (and the last step), oldest first."""
+    points = []
+    for path in list_checkpoints(run_dir):
+        state = torch.load(path, map_location=pipeline.device, weights_only=False)
+        step = int(state["step"])
+        if step % every and step != max_steps:
+            continue  # written on an interrupt, off the schedule
+        pipeline.model.load_state_dict(state["model"])
+        pipeline.model.update_step(step)
+        pipeline.model.eval()
+        points.append(evaluate_state(pipeline, state, scene_dir, evaluation))
+    return points
+
+
+def _adaptive_ran(model) -> bool:
+    """Whether the run reached the view-adaptive phases (False for original methods and skipped scenes)."""
+    return int(getattr(model.field, "current_phase", 1)) > 1
+
+
+def run_row(row: RowSpec, config, scene_dir: Path, evaluation: EvalSettings, row_fingerprint: str,
+            on_interrupt=None) -> Dict[str, Any]:
+    """Train (or resume) the row's run, evaluate it along the way and at the end; the finished row."""
+    run_dir = Path(config.output_dir)
+    marker = run_dir / ROW_FILE
+    resumable = marker.is_file() and json.loads(marker.read_text()).get("fingerprint") == row_fingerprint
+    if not resumable:
+        shutil.rmtree(run_dir, ignore_errors=True)
+        run_dir.mkdir(parents=True)
+        marker.write_text(json.dumps({"key": row.key, "fingerprint": row_fingerprint}))
+    trainer = config.setup()
+    resumed_from = trainer.step if resumable and trainer.resume() else None
+    try:
+        trainer.train()
+    except KeyboardInterrupt:
+        path = trainer.save_checkpoint()
+        if on_interrupt is not None:
+            on_interrupt(path)
+        raise
+    started = time.perf_counter()
+    curve = evaluate_checkpoints(trainer.pipeline, run_dir, scene_dir, evaluation, config.checkpoint_every,
+                                 config.max_steps)
+    for path in list_checkpoints(run_dir)[:-1]:
+        path.unlink()
+    final = curve[-1]
+    result: Dict[str, Any] = {
+        "experiment": row.experiment, "key": row.key, "fingerprint": row_fingerprint,
+        "scene": row.scene.name, "method": row.method, "backbone": row.backbone, "adaptive": row.adaptive,
+        **{name: final.get(name, float("nan")) for name in METRICS},
+        "train_seconds": round(final["train_seconds"], 2), "steps": final["steps"],
+        "variant": row.label, "level": row.scene.level, "views": row.scene.views, "seed": config.seed,
+        "adaptive_ran": _adaptive_ran(trainer.pipeline.model), **input_error(scene_dir),
+        "eval_seconds": round(time.perf_counter() - started, 2),
+        "source": row.scene.source, "run_dir": str(run_dir), "resumed_from_step": resumed_from,
+        "evaluation": {k: final[k] for k in ("image_params", "geometry_params") if k in final},
+        "curve": [{"step": p["steps"], "train_seconds": round(p["train_seconds"], 2),
+                   **{name: p.get(name, float("nan")) for name in METRICS}} for p in curve],
+    }
+    problems = [final[k] for k in ("error", "lpips_missing") if k in final]
+    if problems:
+        result["error"] = "; ".join(problems)
+    return result
+
+
+def run_steps(row: RowSpec, preset: BenchPreset) -> int:
+    """The step budget a row will train for (for progress estimates)."""
+    if row.backbone in preset.steps:
+        return preset.steps[row.backbone]
+    return int(get_method(row.method).make_config(preset.method_preset).max_steps)
+
+
+def scene_of(source: str, preset: BenchPreset, seed: int, level: Optional[int] = None,
+             views: Optional[int] = None) -> SceneSpec:
+    """The scene of a source under a preset (its level, views and resolution unless given)."""
+    return SceneSpec(source, preset.level if level is None else level, preset.views if views is None else views,
+                     preset.resolution, seed, preset.scene_mesh_resolution)

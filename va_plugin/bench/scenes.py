@@ -1,0 +1,112 @@
+"""Scenes of a benchmark: names on the command line, and the scene cache under ``--out``.
+
+A scene name is ``NAME`` or ``procedural:NAME`` (a procedural object), ``gso:NAME`` (a Google Scanned
+Object under ``--data-root``), ``mesh:PATH`` (a textured mesh file), or one of the groups ``procedural``
+(all procedural objects) and ``gso`` (all GSO objects found). Scenes are built once by the scene builder
+into ``CACHE/<name>-l<level>-v<views>-r<resolution>-s<seed>`` and reused; a build goes to a temporary
+folder first, so an interrupted build never leaves a half-written scene behind.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import re
+import shutil
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Iterable, List, Optional, Sequence
+
+from va_plugin.errors import ConfigError, DataError
+
+SCENE_FILE = "scene.json"
+
+
+@dataclass(frozen=True)
+class SceneSpec:
+    """One benchmark scene: a source plus the builder's arguments."""
+
+    source: str
+    level: int = 2
+    views: int = 4
+    resolution: int = 256
+    seed: int = 42
+    mesh_resolution: int = 160
+
+    @property
+    def name(self) -> str:
+        """Short name for tables: the object's name (``gso-`` in front for GSO objects)."""
+        kind, _, rest = self.source.partition(":")
+        if kind == "procedural":
+            return rest
+        if kind == "mesh":
+            return Path(rest).stem
+        return f"{kind}-{rest}"
+
+    @property
+    def folder_name(self) -> str:
+        slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", self.name)
+        return f"{slug}-l{self.level}-v{self.views}-r{self.resolution}-s{self.seed}"
+
+
+def expand_scene_names(names: Iterable[str], data_root: Optional[Path]) -> List[str]:
+    """Scene names -> builder sources (``procedural:NAME``, ``gso:NAME``, ``mesh:PATH``), groups expanded,
+    duplicates dropped. The ``gso`` group is empty (with a note on stdout) when ``data_root`` holds none."""
+    from va_plugin.data.scenes import gso, list_objects
+
+    procedural = [name for name, _ in list_objects()]
+    sources: List[str] = []
+    for raw in names:
+        name = raw.strip()
+        if not name:
+            continue
+        if name == "procedural":
+            sources += [f"procedural:{n}" for n in procedural]
+        elif name == "gso":
+            try:
+                sources += [f"gso:{n}" for n in gso.list_objects(Path(data_root))] if data_root else []
+            except DataError as exc:
+                print(f"note: no GSO scenes ({exc})", flush=True)
+        elif ":" in name:
+            kind = name.split(":", 1)[0]
+            if kind not in ("procedural", "gso", "mesh"):
+                raise ConfigError(f"scene {name!r}: the source kind must be procedural, gso or mesh")
+            sources.append(name)
+        elif name in procedural:
+            sources.append(f"procedural:{name}")
+        else:
+            raise ConfigError(f"unknown scene {name!r}; procedural objects: {', '.join(procedural)}; "
+                              "or gso:NAME, mesh:PATH, and the groups procedural and gso")
+    return list(dict.fromkeys(sources))
+
+
+def ensure_scene(spec: SceneSpec, cache: Path, data_root: Optional[Path]) -> Path:
+    """The scene's folder in ``cache``, built first when it is not there yet."""
+    from va_plugin.data.scenes import build_scene
+
+    out = Path(cache) / spec.folder_name
+    if (out / SCENE_FILE).is_file():
+        return out
+    partial = out.with_name(out.name + ".partial")
+    shutil.rmtree(partial, ignore_errors=True)
+    build_scene(partial, spec.source, n_views=spec.views, level=spec.level, seed=spec.seed,
+                resolution=spec.resolution, data_root=data_root, mesh_resolution=spec.mesh_resolution)
+    shutil.rmtree(out, ignore_errors=True)
+    partial.rename(out)
+    return out
+
+
+def input_error(scene_dir: Path) -> dict:
+    """The measured size of a scene's injected errors, from its ``scene.json``.
+
+    ``input_psnr``: mean PSNR (dB) of the perturbed inputs against their clean renders (the builder's
+    figure; 100 dB, its cap, at level 0). ``input_rmse``: the mean over *all* input views of the RMS
+    colour error, sqrt(MSE) = 10^(-PSNR/20), so the clean view 0 counts as 0: the (1/n) sum ||delta_i||
+    of the paper's Lemma 1, with images standing in for the projections.
+    """
+    info = json.loads((Path(scene_dir) / SCENE_FILE).read_text())
+    inconsistency = info["inconsistency"]
+    per_view: Sequence[dict] = inconsistency["per_view"]
+    rmse = [0.0 if not view["perturbed"] else 10.0 ** (-float(view["psnr"]) / 20.0) for view in per_view]
+    return {"input_psnr": round(float(inconsistency["mean_psnr"]), 3),
+            "input_rmse": round(math.fsum(rmse) / max(len(rmse), 1), 5)}

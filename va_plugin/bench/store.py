@@ -1,0 +1,65 @@
+"""Finished benchmark rows on disk: ``OUT/rows.jsonl``, one JSON line per row, appended when a row ends.
+
+A line is written and flushed to disk in one go, so an interrupted benchmark loses at most the row in
+flight. ``--resume`` reads the file and skips every planned row whose key and settings fingerprint
+match a stored line (a row whose settings changed runs again; its new line supersedes the old one).
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import os
+from pathlib import Path
+from typing import Any, Dict, Optional
+
+from va_plugin.errors import ConfigError
+
+ROWS_FILE = "rows.jsonl"
+
+
+def _finite_or_none(value: Any) -> Any:
+    """JSON has no NaN: not-a-number metrics are written as null."""
+    if isinstance(value, float) and not math.isfinite(value):
+        return None
+    if isinstance(value, dict):
+        return {k: _finite_or_none(v) for k, v in value.items()}
+    if isinstance(value, list):
+        return [_finite_or_none(v) for v in value]
+    return value
+
+
+def _nan_for_none(row: Dict[str, Any]) -> Dict[str, Any]:
+    return {k: (float("nan") if v is None else v) for k, v in row.items()}
+
+
+class ResultStore:
+    """The rows of one benchmark folder."""
+
+    def __init__(self, out: Path, resume: bool) -> None:
+        self.path = Path(out) / ROWS_FILE
+        self.rows: Dict[str, Dict[str, Any]] = {}
+        if self.path.is_file() and self.path.stat().st_size > 0:
+            if not resume:
+                raise ConfigError(f"{out} already holds benchmark rows ({ROWS_FILE}); pass --resume to skip "
+                                  "the finished ones, or choose another --out")
+            for line in self.path.read_text().splitlines():
+                try:
+                    row = json.loads(line)
+                except json.JSONDecodeError:
+                    continue  # a line cut short by a crash
+                if isinstance(row, dict) and "key" in row:
+                    self.rows[row["key"]] = _nan_for_none(row)
+
+    def finished(self, key: str, fingerprint: str) -> Optional[Dict[str, Any]]:
+        """The stored row of ``key`` when it was run with the same settings, else None."""
+        row = self.rows.get(key)
+        return row if row is not None and row.get("fingerprint") == fingerprint else None
+
+    def add(self, row: Dict[str, Any]) -> None:
+        self.path.parent.mkdir(parents=True, exist_ok=True)
+        with open(self.path, "a", encoding="utf-8") as handle:
+            handle.write(json.dumps(_finite_or_none(row)) + "\n")
+            handle.flush()
+            os.fsync(handle.fileno())
+        self.rows[row["key"]] = row
