@@ -3,7 +3,7 @@
 The trainer asks a :class:`TrainingGuard` about every step:
 
 * a loss or gradient that is NaN or infinite: the step is skipped (no optimizer update);
-* a loss that jumps far above its running level (a blow-up, e.g. from a learning rate far too
+* a loss term that jumps far above its own running level (a blow-up, e.g. from a learning rate far too
   high), parameters that turned non-finite after an update, or too many skipped steps in a row:
   the last good state (parameters and optimizer state, kept in memory every ``snapshot_every`` steps) is
   restored and the learning rates are multiplied by ``lr_backoff``;
@@ -40,7 +40,7 @@ class HealthConfig:
     """When a step counts as bad, and what the trainer does about it."""
 
     spike_factor: float = 20.0
-    """A loss above ``spike_factor`` times its running level (and above ``spike_floor``) is a blow-up:
+    """A loss term above ``spike_factor`` times its running level (and above ``spike_floor``) is a blow-up:
     the last good state is restored (0: no blow-up test; non-finite values are still caught)."""
     spike_floor: float = 2.0
     """Losses below this never count as a blow-up (a healthy run's photometric and mask terms stay far below)."""
@@ -77,7 +77,7 @@ class TrainingGuard:
     def __init__(self, config: HealthConfig, inv_s_start: Optional[float] = None) -> None:
         config.validate()
         self.config = config
-        self.level: Optional[float] = None  # running level of |loss| over accepted steps
+        self.levels: Dict[str, float] = {}  # running level of |term| over accepted steps, per loss term
         self.lr_scale = 1.0
         self.bad_steps = 0
         self.restores = 0
@@ -90,17 +90,22 @@ class TrainingGuard:
         """What was wrong with the last bad step."""
 
     # -- the verdict on a step ------------------------------------------------------------------------
-    def check_loss(self, loss: torch.Tensor) -> str:
-        """OK, SKIP (non-finite) or RESTORE (blow-up) for a step's total loss, before backward."""
-        value = float(loss.detach())
-        if not math.isfinite(value):
+    def check_loss(self, loss: torch.Tensor, terms: Dict[str, torch.Tensor]) -> str:
+        """OK, SKIP (non-finite) or RESTORE (blow-up) for a step's total loss and its terms, before backward.
+
+        Each term is judged against its own running level, so a term that appears mid-run (a
+        regularizer switched on by a training phase) sets its level instead of counting as a blow-up."""
+        if not math.isfinite(float(loss.detach())):
             return self._bad("non-finite loss")
         cfg = self.config
-        if cfg.spike_factor > 0 and self.level is not None and value > max(cfg.spike_factor * self.level,
-                                                                            cfg.spike_floor):
-            self.bad_steps += 1
-            self.reason = f"the loss blew up to {value:.3g} (running level {self.level:.3g})"
-            return RESTORE
+        if cfg.spike_factor <= 0:
+            return OK
+        for name, term in terms.items():
+            value, level = abs(float(term.detach())), self.levels.get(name)
+            if level is not None and value > max(cfg.spike_factor * level, cfg.spike_floor):
+                self.bad_steps += 1
+                self.reason = f"the {name} loss blew up to {value:.3g} (its running level: {level:.3g})"
+                return RESTORE
         return OK
 
     def check_gradients(self, parameters) -> str:
@@ -126,10 +131,11 @@ class TrainingGuard:
             return RESTORE
         return SKIP
 
-    def accept(self, loss: torch.Tensor) -> None:
-        """A step whose update was applied: its loss feeds the running level."""
-        value = abs(float(loss.detach()))
-        self.level = value if self.level is None else 0.9 * self.level + 0.1 * value
+    def accept(self, terms: Dict[str, torch.Tensor]) -> None:
+        """A step whose update was applied: its loss terms feed their running levels."""
+        for name, term in terms.items():
+            value, level = abs(float(term.detach())), self.levels.get(name)
+            self.levels[name] = value if level is None else 0.9 * level + 0.1 * value
         self.skips_in_a_row = 0
 
     # -- last good state ------------------------------------------------------------------------------
@@ -194,12 +200,12 @@ class TrainingGuard:
         return "; ".join(parts) if parts else None
 
     def state_dict(self) -> Dict[str, Any]:
-        return {"level": self.level, "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
+        return {"levels": dict(self.levels), "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
                 "restores": self.restores, "skips_in_a_row": self.skips_in_a_row, "inv_s_start": self.inv_s_start,
                 "inv_s_below_start": self.inv_s_below_start, "warned": sorted(self._warned)}
 
     def load_state_dict(self, state: Dict[str, Any]) -> None:
-        self.level = state.get("level")
+        self.levels = dict(state.get("levels", {}))
         self.lr_scale = float(state.get("lr_scale", 1.0))
         self.bad_steps = int(state.get("bad_steps", 0))
         self.restores = int(state.get("restores", 0))

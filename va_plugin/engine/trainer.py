@@ -261,7 +261,7 @@ class Trainer:
         loss = sum(loss_dict.values())
         params = [p for group in self.optimizer.param_groups for p in group["params"]]
         guard = self.guard
-        verdict = guard.check_loss(loss)
+        verdict = guard.check_loss(loss, loss_dict)
         if verdict == OK:
             guard.maybe_snapshot(self.step, self.model, self.optimizer)  # these parameters gave a sane loss
             loss.backward()
@@ -270,7 +270,7 @@ class Trainer:
             self.optimizer.step()
             verdict = guard.check_parameters(params)
         if verdict == OK:
-            guard.accept(loss)
+            guard.accept(loss_dict)
         else:
             self.optimizer.zero_grad(set_to_none=True)
             if verdict == SKIP:
