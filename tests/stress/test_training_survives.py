@@ -48,6 +48,45 @@ def test_an_all_background_batch_through_every_model(method, tiny_scene, tmp_pat
     assert all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in model.parameters())
 
 
+@pytest.mark.parametrize("method", METHODS)
+def test_axis_parallel_grazing_zero_length_and_inside_rays_through_every_model(method, tiny_scene, tmp_path):
+    trainer = tiny_config(method, tiny_scene, tmp_path, steps=2).setup()
+    model = trainer.model
+    if hasattr(model.field, "set_phase"):
+        model.field.set_phase(3)
+    model.train()
+    r = model.scene.scene_radius
+    origins = torch.tensor([[0.0, 0.0, -3.0], [-3.0, 0.0, 0.0], [0.0, r, -3.0], [r, 0.0, -3.0], [0.0, 0.0, -3.0],
+                            [0.1, 0.1, 0.1], [0.0, 0.0, 0.0], [0.0, 0.2, 0.0]])
+    directions = torch.tensor([[0.0, 0.0, 1.0], [1.0, 0.0, 0.0], [0.0, 0.0, 1.0], [0.0, 0.0, 1.0], [0.0, 0.0, 0.0],
+                               [0.0, 0.0, 0.0], [0.0, 1.0, 0.0], [0.0, 0.0, -1.0]])
+    # axis-parallel through the centre (2), grazing the bound (2), zero-length outside and inside (2),
+    # starting inside the bound (2)
+    outputs = model.get_outputs(RayBundle(origins, directions, torch.arange(8) % 4))
+    assert all(bool(torch.isfinite(outputs[k]).all()) for k in ("rgb", "accumulation", "depth"))
+    assert torch.equal(outputs["accumulation"][4:6], torch.zeros(2, 1))  # zero-length rays see nothing
+    loss = sum(model.get_loss_dict(outputs, {"rgb": torch.rand(8, 3), "mask": torch.ones(8, 1)}).values())
+    loss.backward()
+    assert all(p.grad is None or bool(torch.isfinite(p.grad).all()) for p in model.parameters())
+
+
+def test_each_loss_term_has_its_own_level():
+    from va_plugin.engine.health import OK, RESTORE, HealthConfig, TrainingGuard
+
+    guard = TrainingGuard(HealthConfig())
+    t = torch.tensor
+    assert guard.check_loss(t(0.3), {"rgb": t(0.1), "eikonal": t(0.2)}) == OK
+    guard.accept({"rgb": t(0.1), "eikonal": t(0.2)})
+    # a term switched on mid-run (a phase's regularizer), however large, sets its own level
+    terms = {"rgb": t(0.1), "eikonal": t(0.2), "consistency": t(1e6)}
+    assert guard.check_loss(sum(terms.values()), terms) == OK
+    guard.accept(terms)
+    # one term 20x above its level and above the floor of 2: a blow-up, named in the reason
+    terms = {"rgb": t(0.1), "eikonal": t(4.5), "consistency": t(1e6)}
+    assert guard.check_loss(sum(terms.values()), terms) == RESTORE and "eikonal" in guard.reason
+    assert guard.check_loss(t(float("nan")), {}) != OK
+
+
 def poison(trainer, bad_steps):
     real = trainer.pipeline.datamanager.next_train
 
