@@ -26,15 +26,19 @@ def records(run):
     return [json.loads(line) for line in (run / "metrics.jsonl").read_text().splitlines()]
 
 
+def model_in_training(method, scene, run):
+    """A tiny model of ``method`` in training mode; view-adaptive ones in their fusion phase, so every path runs."""
+    model = tiny_config(method, scene, run, steps=2).setup().model
+    if hasattr(model.field, "set_phase"):
+        model.field.set_phase(3)
+    return model.train()
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_an_all_background_batch_through_every_model(method, tiny_scene, tmp_path):
     """Rays that all miss the bound, with background targets: exactly the background, finite losses and
     gradients (view-adaptive methods in their fusion phase, so every path runs)."""
-    trainer = tiny_config(method, tiny_scene, tmp_path, steps=2).setup()
-    model = trainer.model
-    if hasattr(model.field, "set_phase"):
-        model.field.set_phase(3)
-    model.train()
+    model = model_in_training(method, tiny_scene, tmp_path)
     n = 16
     directions = torch.nn.functional.normalize(torch.randn(n, 3) * 0.1 + torch.tensor([0.0, 0.0, 1.0]), dim=-1)
     rays = RayBundle(torch.tensor([[0.0, 0.0, 3.0]]).expand(n, 3).clone(), directions, torch.arange(n) % 4)
@@ -50,11 +54,7 @@ def test_an_all_background_batch_through_every_model(method, tiny_scene, tmp_pat
 
 @pytest.mark.parametrize("method", METHODS)
 def test_axis_parallel_grazing_zero_length_and_inside_rays_through_every_model(method, tiny_scene, tmp_path):
-    trainer = tiny_config(method, tiny_scene, tmp_path, steps=2).setup()
-    model = trainer.model
-    if hasattr(model.field, "set_phase"):
-        model.field.set_phase(3)
-    model.train()
+    model = model_in_training(method, tiny_scene, tmp_path)
     r = model.scene.scene_radius
     origins = torch.tensor([[0.0, 0.0, -3.0], [-3.0, 0.0, 0.0], [0.0, r, -3.0], [r, 0.0, -3.0], [0.0, 0.0, -3.0],
                             [0.1, 0.1, 0.1], [0.0, 0.0, 0.0], [0.0, 0.2, 0.0]])
