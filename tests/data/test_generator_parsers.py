@@ -250,6 +250,17 @@ def test_bad_layouts_name_the_expected_one(tmp_path, syncdreamer_strip, renderer
         parse(partial, "wonder3d")
 
 
+def test_an_ambiguous_folder_asks_for_a_format(tmp_path, wonder3d_folder):
+    folder = tmp_path / "both"
+    folder.mkdir()
+    for file in wonder3d_folder[0].glob("rgb_*.png"):
+        (folder / file.name).write_bytes(file.read_bytes())
+    (folder / "transforms.json").write_text('{"frames": []}')
+    with pytest.raises(DataError, match="could be any of transforms, wonder3d; choose one with --data-format"):
+        detect_format(folder)
+    assert resolve_dataparser(folder, "wonder3d").data == folder
+
+
 def test_no_foreground_and_no_background_are_refused(tmp_path):
     blank = tmp_path / "blank.png"
     write_image(blank, np.full((TILE, 16 * TILE, 3), 0.98, np.float32))
