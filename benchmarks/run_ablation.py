@@ -20,9 +20,8 @@ from typing import Any, Dict, List
 
 from va_plugin.bench.cli import Experiment, backbones_from_args, main as bench_main
 from va_plugin.bench.presets import BACKBONE_TITLES
-from va_plugin.bench.report import (DELTA_TITLES, delta_cell, fmt_delta, group_rows, header_block, markdown_table,
-                                    metric_delta, per_scene_table, plot_time_curves, settings_line, summary_table,
-                                    write_csv, write_json)
+from va_plugin.bench.report import (DELTA_TITLES, delta_cell, fmt_delta, group_rows, markdown_table, metric_delta,
+                                    plot_time_curves, report_sections, write_outputs)
 from va_plugin.bench.rows import RowSpec, scene_of
 
 FIELD = "pipeline.model.field."
@@ -77,22 +76,12 @@ def step_table(rows: List[Dict[str, Any]]) -> str:
 
 
 def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
-    scenes = len({r["scene"] for r in rows})
-    meta = {**meta, "settings": meta["settings"] + "; " + settings_line(rows)}
-    text = "\n\n".join([
-        header_block("Table 4: cumulative ablation", meta),
-        f"## Mean ± sd over {scenes} scene(s)", summary_table(rows, expected=scenes),
+    sections = report_sections("Table 4: cumulative ablation", meta, rows, [
         "## Each step against the row before, paired by scene",
         "The paper's steps are from its Table 4 (NeuS, SyncDreamer inputs, GPU).",
-        step_table(rows),
-        "## Per scene", per_scene_table(rows),
-        "![CD and PSNR against training seconds](ablation_time.png)",
-    ])
-    md = out / "ablation.md"
-    md.write_text(text + "\n")
-    written = [md, write_csv(rows, out / "ablation.csv"), write_json(rows, out / "ablation.json", meta)]
-    plot = plot_time_curves(rows, out / "ablation_time.png", "Ablation: error against training time")
-    return written + ([plot] if plot else [])
+        step_table(rows)], ("ablation_time.png", "CD and PSNR against training seconds"), True)
+    return write_outputs(rows, out, "ablation", meta, sections, {"ablation_time.png": lambda path: plot_time_curves(
+        rows, path, "Ablation: error against training time")})
 
 
 EXPERIMENT = Experiment("ablation", "Ablation (Table 4)", __doc__, plan, report, default_backbones="neus")

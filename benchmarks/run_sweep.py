@@ -26,11 +26,10 @@ import sys
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
-from va_plugin.bench.cli import Experiment, adaptive_overrides, backbones_from_args, comma_list, main as bench_main
+from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_rows
 from va_plugin.bench.presets import BACKBONE_TITLES
-from va_plugin.bench.report import (axis_table, fmt, fmt_mean_sd, group_rows, header_block, linear_fit,
-                                    markdown_table, mean_sd, per_scene_table, plot_against, settings_line,
-                                    write_csv, write_json)
+from va_plugin.bench.report import (axis_table, fmt, fmt_mean_sd, group_rows, linear_fit, markdown_table, mean_sd,
+                                    plot_against, report_sections, write_outputs)
 from va_plugin.bench.rows import RowSpec, scene_of
 
 
@@ -40,15 +39,8 @@ def add_arguments(parser) -> None:
 
 
 def plan(preset, args, sources: List[str]) -> List[RowSpec]:
-    levels = comma_list(args.levels, int) if args.levels else list(preset.levels)
-    rows = []
-    for source in sources:
-        for level in levels:
-            scene = scene_of(source, preset, args.seed, level=level)
-            for backbone in backbones_from_args(args):
-                rows.append(RowSpec("sweep", scene, backbone, adaptive=False))
-                rows.append(RowSpec("sweep", scene, backbone, adaptive=True, overrides=adaptive_overrides(args)))
-    return rows
+    return [row for source in sources for level in axis_values(args.levels, preset.levels)
+            for row in paired_rows("sweep", scene_of(source, preset, args.seed, level=level), args)]
 
 
 def render_rmse(row: Dict[str, Any]) -> float:
@@ -104,9 +96,7 @@ def input_error_table(rows: List[Dict[str, Any]]) -> str:
 
 
 def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
-    meta = {**meta, "settings": meta["settings"] + "; " + settings_line(rows)}
-    text = "\n\n".join([
-        header_block("Error against the size of the view inconsistency (Lemma 1, Theorem 1)", meta),
+    sections = report_sections("Error against the size of the view inconsistency (Lemma 1, Theorem 1)", meta, rows, [
         "## Measured input error per level (mean ± sd over scenes)", input_error_table(rows),
         "## Lemma 1 and Theorem 1",
         "Slopes are least-squares fits per scene of the error against the mean per-view input RMSE, "
@@ -114,16 +104,11 @@ def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[
         "the theorem's 1 - lambda_adapt if the theorem holds: it should lie between 0 and 1.",
         claims_table(rows),
         "## Chamfer distance per level", axis_table(rows, "level", "cd", "level"),
-        "## PSNR per level", axis_table(rows, "level", "psnr", "level"),
-        "## Per scene", per_scene_table(rows),
-        "![CD and PSNR against the input error](sweep.png)",
-    ])
-    md = out / "sweep.md"
-    md.write_text(text + "\n")
-    written = [md, write_csv(rows, out / "sweep.csv"), write_json(rows, out / "sweep.json", meta)]
-    plot = plot_against(rows, "input_rmse", ("cd", "psnr"), out / "sweep.png", "Error against the measured input "
-                        "error (all scenes and levels; lines: least squares)", "mean per-view input RMSE", fits=True)
-    return written + ([plot] if plot else [])
+        "## PSNR per level", axis_table(rows, "level", "psnr", "level")],
+        ("sweep.png", "CD and PSNR against the input error"))
+    return write_outputs(rows, out, "sweep", meta, sections, {"sweep.png": lambda path: plot_against(
+        rows, "input_rmse", ("cd", "psnr"), path, "Error against the measured input error (all scenes and levels; "
+        "lines: least squares)", "mean per-view input RMSE", fits=True)})
 
 
 EXPERIMENT = Experiment("sweep", "Inconsistency sweep (Lemma 1, Theorem 1)", __doc__, plan, report, add_arguments,

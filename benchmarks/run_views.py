@@ -19,9 +19,8 @@ import sys
 from pathlib import Path
 from typing import Any, Dict, List
 
-from va_plugin.bench.cli import Experiment, adaptive_overrides, backbones_from_args, comma_list, main as bench_main
-from va_plugin.bench.report import (axis_table, header_block, per_scene_table, plot_against, settings_line,
-                                    write_csv, write_json)
+from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_rows
+from va_plugin.bench.report import axis_table, plot_against, report_sections, write_outputs
 from va_plugin.bench.rows import RowSpec, scene_of
 
 
@@ -31,37 +30,22 @@ def add_arguments(parser) -> None:
 
 
 def plan(preset, args, sources: List[str]) -> List[RowSpec]:
-    counts = comma_list(args.view_counts, int) if args.view_counts else list(preset.view_counts)
-    rows = []
-    for source in sources:
-        for views in counts:
-            scene = scene_of(source, preset, args.seed, views=views)
-            for backbone in backbones_from_args(args):
-                rows.append(RowSpec("views", scene, backbone, adaptive=False))
-                rows.append(RowSpec("views", scene, backbone, adaptive=True, overrides=adaptive_overrides(args)))
-    return rows
+    return [row for source in sources for views in axis_values(args.view_counts, preset.view_counts)
+            for row in paired_rows("views", scene_of(source, preset, args.seed, views=views), args)]
 
 
 def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
-    meta = {**meta, "settings": meta["settings"] + "; " + settings_line(rows)}
-    text = "\n\n".join([
-        header_block("Fig. 5: reconstruction error against the number of input views", meta),
+    sections = report_sections("Fig. 5: reconstruction error against the number of input views", meta, rows, [
         "## Chamfer distance (mean ± sd over scenes; CD change: adaptive against original, paired by scene)",
         axis_table(rows, "views", "cd", "views:"),
         "The paper (Fig. 5, no numbers given): the adaptive method's gain is largest at 4 views and shrinks "
         "with more views; the original improves distinctly with more views, the adaptive method much less.",
         "## Volume IoU", axis_table(rows, "views", "iou", "views:"),
         "## PSNR on held-out views (the test split shrinks as inputs are added)",
-        axis_table(rows, "views", "psnr", "views:"),
-        "## Per scene", per_scene_table(rows),
-        "![CD and PSNR against the number of views](views.png)",
-    ])
-    md = out / "views.md"
-    md.write_text(text + "\n")
-    written = [md, write_csv(rows, out / "views.csv"), write_json(rows, out / "views.json", meta)]
-    plot = plot_against(rows, "views", ("cd", "psnr"), out / "views.png", "Error against the number of input views "
-                        "(mean ± sd over scenes)", "input views")
-    return written + ([plot] if plot else [])
+        axis_table(rows, "views", "psnr", "views:")], ("views.png", "CD and PSNR against the number of views"))
+    return write_outputs(rows, out, "views", meta, sections, {"views.png": lambda path: plot_against(
+        rows, "views", ("cd", "psnr"), path, "Error against the number of input views (mean ± sd over scenes)",
+        "input views")})
 
 
 EXPERIMENT = Experiment("views", "Views (Fig. 5)", __doc__, plan, report, add_arguments, axis_scenes=True,

@@ -187,3 +187,16 @@ def test_sweep_verdict_on_synthetic_rows(scripts):
     table = scripts["sweep"].claims_table(rows)
     cd_line = next(line for line in table.splitlines() if "Chamfer" in line)
     assert "yes: slope 0.5000" in cd_line and "yes: ratio adaptive/original 0.40" in cd_line
+
+
+@pytest.mark.parametrize("name", ["views", "ablation", "sweep"])
+def test_every_script_writes_its_report(name, scripts, tiny_scene, tmp_path, monkeypatch):
+    monkeypatch.setattr(bench_cli, "ensure_scene", lambda *args: tiny_scene)
+    monkeypatch.setattr(bench_cli, "run_row", fake_result)
+    out = tmp_path / name
+    assert scripts[name].main(["--preset", "smoke", "--out", str(out)]) == 0
+    data = json.loads((out / f"{name}.json").read_text())
+    assert len(data["rows"]) == {"views": 8, "ablation": 5, "sweep": 8}[name]
+    assert len((out / f"{name}.csv").read_text().splitlines()) == len(data["rows"]) + 1
+    assert "## Per scene" in (out / f"{name}.md").read_text()
+    assert any(p.suffix == ".png" and p.stat().st_size > 1000 for p in out.iterdir())

@@ -69,7 +69,8 @@ def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
                         help="comma-separated: NAME (procedural), gso:NAME, mesh:PATH, or the groups "
                              "procedural and gso (default: the preset's)")
     if "level" not in experiment.fixed:
-        parser.add_argument("--level", type=int, default=None, help="inconsistency level 0-3 (default: the preset's, 2)")
+        parser.add_argument("--level", type=int, default=None,
+                            help="inconsistency level 0-3 (default: the preset's, 2)")
     if "views" not in experiment.fixed:
         parser.add_argument("--views", type=int, default=None, help="input views 4, 8, 12 or 16 (default 4)")
     parser.add_argument("--backbones", default=experiment.default_backbones,
@@ -116,6 +117,21 @@ def backbones_from_args(args: argparse.Namespace) -> List[str]:
 
 def adaptive_overrides(args: argparse.Namespace) -> tuple:
     return ("pipeline.model.field.skip_consistent_scenes=false",) if args.force_adaptive else ()
+
+
+def paired_rows(experiment: str, scene, args: argparse.Namespace) -> List[RowSpec]:
+    """Per backbone, the original row then the adaptive row on one scene (adjacent, so that both see about
+    the same load on a shared machine)."""
+    rows = []
+    for backbone in backbones_from_args(args):
+        rows.append(RowSpec(experiment, scene, backbone, adaptive=False))
+        rows.append(RowSpec(experiment, scene, backbone, adaptive=True, overrides=adaptive_overrides(args)))
+    return rows
+
+
+def axis_values(text: Optional[str], default: Sequence[int]) -> List[int]:
+    """A comma-separated list of integers from a flag, or the preset's values."""
+    return comma_list(text, int) if text else list(default)
 
 
 def duration(seconds: float) -> str:

@@ -111,8 +111,8 @@ def markdown_table(header: Sequence[str], body: Iterable[Sequence[Any]]) -> str:
     return "\n".join(lines)
 
 
-def header_block(title: str, meta: Dict[str, Any]) -> str:
-    """Title, command, date, machine and settings of a report."""
+def header_block(title: str, meta: Dict[str, Any], rows: Sequence[Dict[str, Any]]) -> str:
+    """Title, command, date, machine and settings (the run's and the rows' evaluation) of a report."""
     machine = meta["machine"]
     load = machine.get("load_average_start")
     lines = [f"# {title}", "",
@@ -122,7 +122,7 @@ def header_block(title: str, meta: Dict[str, Any]) -> str:
              f"threads{'' if not machine.get('cuda') else ', ' + machine['cuda']}"
              + (f"; load average {load[0]} at the start, {machine.get('load_average_end', ['?'])[0]} at the end"
                 if load else ""),
-             f"- {meta['settings']}",
+             f"- {meta['settings']}; {settings_line(rows)}",
              f"- rows: {meta['rows_done']} of {meta['rows_planned']} finished; {meta['rows_run']} run in the last "
              f"session, wall time {meta['wall']}"]
     return "\n".join(lines)
@@ -243,6 +243,30 @@ def settings_line(rows: Sequence[Dict[str, Any]]) -> str:
         parts.append(f"meshes: marching cubes {geo.get('mesh_resolution')}^3, CD/F-score on {geo.get('n_samples')} "
                      f"surface samples, F at {geo.get('threshold')}, IoU on a {geo.get('resolution')}^3 grid")
     return "evaluation: " + "; ".join(parts)
+
+
+def report_sections(title: str, meta: Dict[str, Any], rows: Sequence[Dict[str, Any]], body: Sequence[str],
+                    image: Tuple[str, str], with_summary: bool = False) -> List[str]:
+    """A report's Markdown sections: the header, (the mean ± sd table,) ``body``, the per-scene rows and
+    the plot (``image``: file name, caption)."""
+    sections = [header_block(title, meta, rows)]
+    if with_summary:
+        scenes = len({r["scene"] for r in rows})
+        sections += [f"## Mean ± sd over {scenes} scene(s)", summary_table(rows, expected=scenes)]
+    return sections + list(body) + ["## Per scene", per_scene_table(rows), f"![{image[1]}]({image[0]})"]
+
+
+def write_outputs(rows: Sequence[Dict[str, Any]], out: Path, name: str, meta: Dict[str, Any], sections: Sequence[str],
+                  plots: Dict[str, Callable[[Path], Optional[Path]]]) -> List[Path]:
+    """``OUT/<name>.md`` (the sections), ``.csv``, ``.json`` and the plots (file name -> writer)."""
+    md = out / f"{name}.md"
+    md.write_text("\n\n".join(sections) + "\n")
+    written = [md, write_csv(rows, out / f"{name}.csv"), write_json(rows, out / f"{name}.json", meta)]
+    for filename, plot in plots.items():
+        path = plot(out / filename)
+        if path is not None:
+            written.append(path)
+    return written
 
 
 # -- plots -----------------------------------------------------------------------------------------------
