@@ -1,0 +1,194 @@
+"""What skipping buys (issue 4): ``ngp`` and ``neus`` trained with each kind of skipping on and off.
+
+For every variant below the script trains the method's default run on one scene (``va-train``, in a
+subprocess), evaluates it (``va-eval``: PSNR/SSIM/LPIPS on the held-out views, CD/IoU/F-score of the
+mesh) and reads the samples per ray the model logged. Whole-run iterations per second are noisy on a
+shared machine, so it then times the trained runs again side by side: in one process, it continues
+every run for ``--timing-steps`` steps in turn, for ``--timing-rounds`` rounds (the order rotates each
+round), and reports the median seconds per step of each. Everything goes into one JSON file.
+
+    python benchmarks/bench_skipping.py [--data DIR] [--work /tmp/va-bench-skipping]
+        [--out benchmarks/results/skipping.json] [--only NAME ...] [--image-scale 0.5] [--steps N]
+
+Without ``--data`` the embedded default scene is used (built into ``$VA_PLUGIN_CACHE`` on first use).
+Run folders are reused: an interrupted run continues, a finished one is only evaluated, one with an
+``eval.json`` is taken as it is (``--fresh`` starts them all again).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import platform
+import shutil
+import statistics
+import subprocess
+import sys
+import time
+from pathlib import Path
+from typing import Dict, List, Sequence
+
+import torch
+
+from va_plugin.engine.trainer import list_checkpoints, load_checkpoint
+
+NO_GRID = ["--set", "pipeline.model.occupancy_grid.enabled=false"]
+NO_EARLY_STOP = ["--set", "pipeline.model.early_stop_transmittance=0"]
+VARIANTS: Dict[str, tuple] = {
+    "ngp": ("ngp", []),
+    "ngp-no-grid": ("ngp", NO_GRID),
+    "ngp-no-early-stop": ("ngp", NO_EARLY_STOP),
+    "ngp-no-skipping": ("ngp", NO_GRID + NO_EARLY_STOP),
+    "ngp-fast": ("ngp", ["--preset", "fast"]),
+    "neus": ("neus", []),
+    "neus-no-ray-skip": ("neus", ["--set", "pipeline.model.skip_empty_rays=false"]),
+    "neus-far-samples": ("neus", ["--set", "pipeline.model.skip_far_samples=true"]),
+}
+"""name -> (method, extra ``va-train`` arguments); a method's own name is its default run."""
+
+EVAL_KEYS = ("psnr", "ssim", "lpips", "cd", "iou", "fscore")
+
+
+def cli(name: str) -> str:
+    """A console script of this environment (next to the running interpreter)."""
+    return str(Path(sys.executable).parent / name)
+
+
+def train_and_evaluate(name: str, data: Path | None, run_dir: Path, image_scale: float, fresh: bool,
+                       steps: int | None, common: Sequence[str] = ()) -> None:
+    """Train variant ``name`` into ``run_dir`` (with the ``common`` overrides; an interrupted run
+    continues, a finished one is kept) and write its ``eval.json`` unless it has one."""
+    if fresh:
+        shutil.rmtree(run_dir, ignore_errors=True)
+    if (run_dir / "eval.json").is_file():
+        return
+    method, extra = VARIANTS[name]
+    command = [cli("va-train"), method, "--output-dir", str(run_dir), "--no-progress", "--resume"]
+    command += [] if data is None else ["--data", str(data)]
+    command += [] if steps is None else ["--steps", str(steps)]
+    for override in common:
+        command += ["--set", override]
+    command += extra
+    print(f"[{name}] training: {' '.join(command)}", flush=True)
+    subprocess.run(command, check=True)
+    print(f"[{name}] evaluating", flush=True)
+    subprocess.run([cli("va-eval"), "--load-dir", str(run_dir), "--image-scale", str(image_scale), "--no-progress"],
+                   check=True)
+
+
+def summarise_run(run_dir: Path) -> Dict[str, object]:
+    """Training time, logged samples per ray and the eval metrics of a finished run."""
+    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    train = [r for r in records if "loss" in r]
+    last = train[-1]
+    out: Dict[str, object] = {"steps": last["step"], "train_seconds": last["train_seconds"],
+                              "it_per_s_whole_run": round(last["step"] / last["train_seconds"], 3)}
+    for key in ("samples_per_ray", "probed_per_ray"):
+        values = [r[key] for r in train if key in r]
+        if values:
+            # logged every 25 steps: the mean over the log is the run's mean up to sampling
+            out[f"{key}_mean"] = round(statistics.fmean(values), 2)
+            out[f"{key}_final"] = values[-1]
+    evaluation = json.loads((run_dir / "eval.json").read_text())
+    out.update({k: evaluation[k] for k in EVAL_KEYS if k in evaluation})
+    out["eval_image_params"] = evaluation.get("image_params")
+    return out
+
+
+def interleaved_step_seconds(run_dirs: Dict[str, Path], work: Path, rounds: int, steps: int) -> Dict[str, Dict]:
+    """Median seconds per training step of each trained run, continued ``steps`` steps at a time in turn
+    (``rounds`` rounds, rotating the order), on copies of the runs."""
+    trainers = {}
+    for name, run_dir in run_dirs.items():
+        copy_dir = work / "timing" / name
+        shutil.rmtree(copy_dir, ignore_errors=True)
+        (copy_dir / "checkpoints").mkdir(parents=True)
+        shutil.copy2(list_checkpoints(run_dir)[-1], copy_dir / "checkpoints")
+        config = copy.deepcopy(load_checkpoint(copy_dir)["config_object"])
+        config.output_dir, config.progress, config.log_every = copy_dir, False, 10 ** 9
+        config.checkpoint_every, config.keep_checkpoints = 10 ** 9, 1
+        trainer = config.setup()
+        trainer.resume()
+        trainers[name] = trainer
+    per_step: Dict[str, List[float]] = {name: [] for name in trainers}
+    names = list(trainers)
+    for r in range(rounds + 1):  # round 0 warms up every run and is not counted
+        for name in names[r % len(names):] + names[:r % len(names)]:
+            trainer = trainers[name]
+            before = trainer.train_seconds
+            trainer.config.max_steps = trainer.step + steps
+            trainer.train()
+            if r > 0:
+                per_step[name].append((trainer.train_seconds - before) / steps)
+    return {name: {"median_s_per_step": round(statistics.median(v), 4),
+                   "it_per_s": round(1.0 / statistics.median(v), 3),
+                   "s_per_step_all": [round(x, 4) for x in v]} for name, v in per_step.items()}
+
+
+def ratios(results: Dict[str, Dict]) -> Dict[str, float]:
+    """Speed and sample-count ratios of each variant against its method's default."""
+    out = {}
+    for name, row in results.items():
+        base = VARIANTS[name][0]
+        if name == base or base not in results:
+            continue
+        ref = results[base]
+        if "timing" in row and "timing" in ref:
+            out[f"{base} / {name} it/s"] = round(ref["timing"]["it_per_s"] / row["timing"]["it_per_s"], 2)
+        if row.get("samples_per_ray_mean") and ref.get("samples_per_ray_mean"):
+            out[f"{name} / {base} samples per ray"] = round(row["samples_per_ray_mean"] / ref["samples_per_ray_mean"], 2)
+    if "ngp" in results and "neus" in results and "timing" in results["ngp"] and "timing" in results["neus"]:
+        out["ngp / neus it/s"] = round(results["ngp"]["timing"]["it_per_s"] / results["neus"]["timing"]["it_per_s"], 2)
+    return out
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--data", type=Path, default=None, help="scene folder (default: the embedded default scene)")
+    parser.add_argument("--work", type=Path, default=Path("/tmp/va-bench-skipping"), help="run folders")
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/skipping.json"))
+    parser.add_argument("--only", nargs="+", choices=sorted(VARIANTS), default=list(VARIANTS))
+    parser.add_argument("--image-scale", type=float, default=0.5, help="held-out views are rendered at this scale")
+    parser.add_argument("--timing-rounds", type=int, default=5)
+    parser.add_argument("--timing-steps", type=int, default=10)
+    parser.add_argument("--steps", type=int, default=None, help="step budget of every run (default: the method's)")
+    parser.add_argument("--set", dest="common", action="append", default=[], metavar="PATH=VALUE",
+                        help="an override for every run (before the variant's own)")
+    parser.add_argument("--fresh", action="store_true", help="start every run again (deletes its folder)")
+    args = parser.parse_args(argv)
+
+    started = time.time()
+    run_dirs = {name: args.work / name for name in args.only}
+    report = {
+        "command": "python benchmarks/bench_skipping.py " + " ".join(sys.argv[1:] if argv is None else argv),
+        "scene": str(args.data) if args.data is not None else "embedded default scene (mug, level 2)",
+        "machine": {"cpus": torch.get_num_threads(), "platform": platform.platform(), "torch": torch.__version__},
+        "variants": {name: {"method": VARIANTS[name][0], "arguments": VARIANTS[name][1]} for name in args.only},
+        "results": {},
+    }
+
+    def write() -> None:  # after every run, so that a long benchmark leaves what it has measured
+        report["ratios"] = ratios(report["results"])
+        report["wall_seconds"] = round(time.time() - started, 1)
+        args.out.parent.mkdir(parents=True, exist_ok=True)
+        args.out.write_text(json.dumps(report, indent=2) + "\n")
+
+    results = report["results"]
+    for name, run_dir in run_dirs.items():
+        train_and_evaluate(name, args.data, run_dir, args.image_scale, args.fresh, args.steps, args.common)
+        results[name] = summarise_run(run_dir)
+        write()
+    if args.timing_rounds > 0:
+        print("timing the trained runs side by side", flush=True)
+        for name, timing in interleaved_step_seconds(run_dirs, args.work, args.timing_rounds,
+                                                     args.timing_steps).items():
+            results[name]["timing"] = timing
+        write()
+    print(json.dumps({"results": {k: {m: v.get(m) for m in ("it_per_s_whole_run", "samples_per_ray_mean", "cd",
+                                                            "psnr")} for k, v in results.items()},
+                      "ratios": report["ratios"]}, indent=1))
+    print(f"written to {args.out}")
+
+if __name__ == "__main__":
+    main()

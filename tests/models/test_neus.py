@@ -1,0 +1,73 @@
+import pytest
+import torch
+
+from conftest import tiny_config
+from va_plugin.model_components.neus import sdf_band
+
+
+def _trainer(tiny_scene, tmp_path, **overrides):
+    torch.manual_seed(0)
+    return tiny_config("neus", tiny_scene, tmp_path / "neus", **overrides).setup()
+
+
+def test_sdf_band_hand_computed():
+    edges = torch.tensor([[0.0, 0.1, 0.2, 0.3, 0.4]])
+    sdf = torch.tensor([[1.0, 0.9, 0.25, 0.05, 0.6]])
+    # lowest SDF a section may reach: min of its ends minus its length = [0.8, 0.15, -0.05, -0.05];
+    # inv_s 10 and margin 2 keep the sections whose lowest value is below 0.2
+    t = torch.tensor([[0.05, 0.1, 0.15, 0.35, 0.4]])  # 0.1 is in section 1; 0.4 (the last edge) in section 3
+    keep = sdf_band(edges, sdf, t, torch.tensor(10.0), margin=2.0)
+    assert keep.tolist() == [[False, True, True, True, True]]
+    # a wider margin keeps everything; inside (negative SDF) is always kept
+    assert sdf_band(edges, sdf, t, torch.tensor(10.0), margin=9.0).all()
+    assert sdf_band(edges, -sdf, t, torch.tensor(1e4), margin=2.0).all()
+
+
+def test_far_sample_skipping_renders_like_every_sample(tiny_scene, tmp_path):
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.n_samples": 16})
+    model = trainer.model
+    with torch.no_grad():
+        model.variance.variance.fill_(0.5)  # inv_s = e^5 ~ 148: a band narrow enough to drop samples
+    rays, batch = trainer.pipeline.datamanager.next_train(0)
+    torch.manual_seed(1)
+    dense = model.get_outputs(rays)
+    dense_samples = model.samples_per_ray
+    model.config.skip_far_samples = True
+    torch.manual_seed(1)  # the same jitter
+    skipped = model.get_outputs(rays)
+    assert model.samples_per_ray < 0.9 * dense_samples
+    assert model.samples_per_ray == pytest.approx(skipped["weights"].numel() / len(rays))
+    assert skipped["gradients"].shape == (skipped["weights"].numel(), 3)
+    # a dropped sample had alpha at NeuS's 1e-5 floor (1e-5 / (Phi + 1e-5)): at most ~30 of them per ray
+    for key in ("rgb", "accumulation", "normal"):
+        assert torch.allclose(skipped[key], dense[key], atol=5e-4), key
+    hit = dense["accumulation"][:, 0] > 0.5  # depth is normalised by the accumulation: compare where it means something
+    assert hit.any() and torch.allclose(skipped["depth"][hit], dense["depth"][hit], atol=1e-3)
+    loss = sum(model.get_loss_dict(skipped, batch).values())
+    loss.backward()
+    assert torch.isfinite(loss)
+    assert all(p.grad is None or torch.isfinite(p.grad).all() for p in model.parameters())
+
+
+def test_a_batch_with_every_sample_skipped_renders_background(tiny_scene, tmp_path):
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.skip_far_samples": True})
+    model = trainer.model
+    with torch.no_grad():
+        model.field.sdf_net.out.bias[0] = 5.0  # far outside everywhere
+        model.variance.variance.fill_(0.5)
+    rays, batch = trainer.pipeline.datamanager.next_train(0)
+    outputs = model.get_outputs(rays)
+    assert outputs["weights"].numel() == 0 and model.samples_per_ray == 0
+    assert torch.allclose(outputs["rgb"], model.background.expand_as(outputs["rgb"]))
+    loss = sum(model.get_loss_dict(outputs, batch).values())
+    loss.backward()
+    assert torch.isfinite(loss)
+
+
+def test_training_logs_samples_per_ray(tiny_scene, tmp_path):
+    trainer = _trainer(tiny_scene, tmp_path, steps=2)
+    record = trainer.train()
+    cfg = trainer.model.config
+    coarse = cfg.n_samples + 2
+    assert 0 < record["samples_per_ray"] <= coarse + cfg.n_importance - 1
+    assert coarse <= record["probed_per_ray"] <= coarse + cfg.n_importance // cfg.up_sample_steps
