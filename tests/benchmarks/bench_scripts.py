@@ -1,4 +1,5 @@
-"""Loading the benchmark scripts (``benchmarks/`` is a folder of scripts, not a package)."""
+"""Loading the benchmark scripts (``benchmarks/`` is a folder of scripts, not a package). Not a conftest.py:
+the top-level tests/conftest.py is imported as ``conftest`` by other test modules."""
 
 from __future__ import annotations
 

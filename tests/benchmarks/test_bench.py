@@ -7,6 +7,7 @@ import json
 import math
 
 import pytest
+from bench_scripts import scripts  # noqa: F401  (fixture)
 
 from va_plugin.bench import cli as bench_cli
 from va_plugin.bench.presets import get_preset
