@@ -16,7 +16,7 @@ from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, scen
 from va_plugin.bench.scenes import SceneSpec, expand_scene_names, input_error
 from va_plugin.bench.store import ResultStore
 from va_plugin.config import to_dict
-from va_plugin.errors import ConfigError
+from va_plugin.errors import ConfigError, VAError
 
 SMOKE = get_preset("smoke")
 
@@ -66,10 +66,14 @@ def test_ablation_rows_are_cumulative_and_force_the_adaptive_phases(scripts, tmp
     assert rows[0].overrides == ()
 
 
-def test_scene_names():
+def test_scene_names(tmp_path):
     assert expand_scene_names(["mug", "procedural:knot", "mug"], None) == ["procedural:mug", "procedural:knot"]
     assert len(expand_scene_names(["procedural"], None)) >= 6
-    assert expand_scene_names(["gso:alarm"], None) == ["gso:alarm"]
+    with pytest.raises(ConfigError):
+        expand_scene_names(["gso:alarm"], None)
+    with pytest.raises(VAError):
+        expand_scene_names(["gso:alarm"], tmp_path)  # no GSO objects there
+    assert expand_scene_names(["gso"], tmp_path) == []  # the group is just empty (with a note)
     with pytest.raises(ConfigError):
         expand_scene_names(["teapot-of-doom"], None)
     assert SceneSpec("gso:alarm", level=3).folder_name == "gso-alarm-l3-v4-r256-s42"

@@ -68,9 +68,13 @@ def expand_scene_names(names: Iterable[str], data_root: Optional[Path]) -> List[
             except DataError as exc:
                 print(f"note: no GSO scenes ({exc})", flush=True)
         elif ":" in name:
-            kind = name.split(":", 1)[0]
+            kind, rest = name.split(":", 1)
             if kind not in ("procedural", "gso", "mesh"):
                 raise ConfigError(f"scene {name!r}: the source kind must be procedural, gso or mesh")
+            if kind == "gso":  # refuse a missing object now, not hours into a benchmark
+                if data_root is None:
+                    raise ConfigError(f"scene {name!r} needs --data-root, the folder of the GSO objects")
+                gso.object_dir(Path(data_root), rest)
             sources.append(name)
         elif name in procedural:
             sources.append(f"procedural:{name}")
