@@ -18,7 +18,6 @@ Run folders are reused: an interrupted run continues, a finished one is only eva
 from __future__ import annotations
 
 import argparse
-import copy
 import json
 import platform
 import shutil
@@ -31,7 +30,9 @@ from typing import Dict, List, Sequence
 
 import torch
 
-from va_plugin.engine.trainer import list_checkpoints, load_checkpoint
+from va_plugin.cli.train import build_parser, make_config
+from va_plugin.engine.trainer import list_checkpoints
+from va_plugin.registry import discover_methods
 
 NO_GRID = ["--set", "pipeline.model.occupancy_grid.enabled=false"]
 NO_EARLY_STOP = ["--set", "pipeline.model.early_stop_transmittance=0"]
@@ -55,21 +56,26 @@ def cli(name: str) -> str:
     return str(Path(sys.executable).parent / name)
 
 
-def train_and_evaluate(name: str, data: Path | None, run_dir: Path, image_scale: float, fresh: bool,
-                       steps: int | None, common: Sequence[str] = ()) -> None:
-    """Train variant ``name`` into ``run_dir`` (with the ``common`` overrides; an interrupted run
-    continues, a finished one is kept) and write its ``eval.json`` unless it has one."""
+def train_arguments(name: str, run_dir: Path, data: Path | None, steps: int | None,
+                    common: Sequence[str] = ()) -> List[str]:
+    """The ``va-train`` arguments of variant ``name`` (the ``common`` overrides before its own)."""
+    method, extra = VARIANTS[name]
+    arguments = [method, "--output-dir", str(run_dir), "--no-progress"]
+    arguments += [] if data is None else ["--data", str(data)]
+    arguments += [] if steps is None else ["--steps", str(steps)]
+    for override in common:
+        arguments += ["--set", override]
+    return arguments + extra
+
+
+def train_and_evaluate(name: str, arguments: List[str], run_dir: Path, image_scale: float, fresh: bool) -> None:
+    """Train variant ``name`` into ``run_dir`` (an interrupted run continues, a finished one is kept)
+    and write its ``eval.json`` unless it has one."""
     if fresh:
         shutil.rmtree(run_dir, ignore_errors=True)
     if (run_dir / "eval.json").is_file():
         return
-    method, extra = VARIANTS[name]
-    command = [cli("va-train"), method, "--output-dir", str(run_dir), "--no-progress", "--resume"]
-    command += [] if data is None else ["--data", str(data)]
-    command += [] if steps is None else ["--steps", str(steps)]
-    for override in common:
-        command += ["--set", override]
-    command += extra
+    command = [cli("va-train")] + arguments + ["--resume"]
     print(f"[{name}] training: {' '.join(command)}", flush=True)
     subprocess.run(command, check=True)
     print(f"[{name}] evaluating", flush=True)
@@ -96,17 +102,21 @@ def summarise_run(run_dir: Path) -> Dict[str, object]:
     return out
 
 
-def interleaved_step_seconds(run_dirs: Dict[str, Path], work: Path, rounds: int, steps: int) -> Dict[str, Dict]:
-    """Median seconds per training step of each trained run, continued ``steps`` steps at a time in turn
-    (``rounds`` rounds, rotating the order), on copies of the runs."""
+def interleaved_step_seconds(runs: Dict[str, tuple], work: Path, rounds: int, steps: int) -> Dict[str, Dict]:
+    """Median seconds per training step of each trained run (name -> (run folder, its ``va-train``
+    arguments)), continued ``steps`` steps at a time in turn (``rounds`` rounds, rotating the order),
+    on copies of the runs."""
+    methods = discover_methods()
     trainers = {}
-    for name, run_dir in run_dirs.items():
+    for name, (run_dir, arguments) in runs.items():
         copy_dir = work / "timing" / name
         shutil.rmtree(copy_dir, ignore_errors=True)
         (copy_dir / "checkpoints").mkdir(parents=True)
         shutil.copy2(list_checkpoints(run_dir)[-1], copy_dir / "checkpoints")
-        config = copy.deepcopy(load_checkpoint(copy_dir)["config_object"])
-        config.output_dir, config.progress, config.log_every = copy_dir, False, 10 ** 9
+        # the config is rebuilt from the command line, as va-train does (a pickled one may predate
+        # fields added since)
+        config = make_config(build_parser(methods).parse_args(arguments), methods)
+        config.output_dir, config.log_every = copy_dir, 10 ** 9
         config.checkpoint_every, config.keep_checkpoints = 10 ** 9, 1
         trainer = config.setup()
         trainer.resume()
@@ -175,14 +185,17 @@ def main(argv: Sequence[str] | None = None) -> None:
         args.out.write_text(json.dumps(report, indent=2) + "\n")
 
     results = report["results"]
+    arguments = {name: train_arguments(name, run_dir, args.data, args.steps, args.common)
+                 for name, run_dir in run_dirs.items()}
     for name, run_dir in run_dirs.items():
-        train_and_evaluate(name, args.data, run_dir, args.image_scale, args.fresh, args.steps, args.common)
+        train_and_evaluate(name, arguments[name], run_dir, args.image_scale, args.fresh)
         results[name] = summarise_run(run_dir)
         write()
     if args.timing_rounds > 0:
         print("timing the trained runs side by side", flush=True)
-        for name, timing in interleaved_step_seconds(run_dirs, args.work, args.timing_rounds,
-                                                     args.timing_steps).items():
+        runs = {name: (run_dirs[name], train_arguments(name, args.work / "timing" / name, args.data, args.steps,
+                                                      args.common)) for name in run_dirs}
+        for name, timing in interleaved_step_seconds(runs, args.work, args.timing_rounds, args.timing_steps).items():
             results[name]["timing"] = timing
         write()
     print(json.dumps({"results": {k: {m: v.get(m) for m in ("it_per_s_whole_run", "samples_per_ray_mean", "cd",
