@@ -102,10 +102,25 @@ def summarise_run(run_dir: Path) -> Dict[str, object]:
     return out
 
 
+@torch.no_grad()
+def rendered_ray_shares(trainer, batches: int = 8) -> Dict[str, float]:
+    """Shares of the background (mask < 0.5) and foreground rays of ``batches`` training batches that a
+    trained run renders at all: a skipped ray (empty-ray test, or no sample left) has accumulation 0."""
+    counts = {"background": [0, 0], "foreground": [0, 0]}
+    for _ in range(batches):
+        rays, batch = trainer.pipeline.datamanager.next_train(trainer.step)
+        rendered = trainer.model.render_rays(rays, keys=("accumulation",))["accumulation"][:, 0] > 0
+        background = batch["mask"][:, 0] < 0.5
+        for key, rows in (("background", background), ("foreground", ~background)):
+            counts[key][0] += int((rendered & rows).sum())
+            counts[key][1] += int(rows.sum())
+    return {f"{key}_rays_rendered": round(hit / max(total, 1), 3) for key, (hit, total) in counts.items()}
+
+
 def interleaved_step_seconds(runs: Dict[str, tuple], work: Path, rounds: int, steps: int) -> Dict[str, Dict]:
     """Median seconds per training step of each trained run (name -> (run folder, its ``va-train``
     arguments)), continued ``steps`` steps at a time in turn (``rounds`` rounds, rotating the order),
-    on copies of the runs."""
+    on copies of the runs; also the share of training rays each run renders at the end of training."""
     methods = discover_methods()
     trainers = {}
     for name, (run_dir, arguments) in runs.items():
@@ -121,6 +136,7 @@ def interleaved_step_seconds(runs: Dict[str, tuple], work: Path, rounds: int, st
         trainer = config.setup()
         trainer.resume()
         trainers[name] = trainer
+    shares = {name: rendered_ray_shares(trainer) for name, trainer in trainers.items()}
     per_step: Dict[str, List[float]] = {name: [] for name in trainers}
     names = list(trainers)
     for r in range(rounds + 1):  # round 0 warms up every run and is not counted
@@ -132,7 +148,7 @@ def interleaved_step_seconds(runs: Dict[str, tuple], work: Path, rounds: int, st
             if r > 0:
                 per_step[name].append((trainer.train_seconds - before) / steps)
     return {name: {"median_s_per_step": round(statistics.median(v), 4),
-                   "it_per_s": round(1.0 / statistics.median(v), 3),
+                   "it_per_s": round(1.0 / statistics.median(v), 3), **shares[name],
                    "s_per_step_all": [round(x, 4) for x in v]} for name, v in per_step.items()}
 
 

@@ -45,3 +45,15 @@ def test_ratios_compare_each_variant_with_its_methods_default(bench):
     ratios = bench.ratios(results)
     assert ratios == {"ngp / ngp-no-skipping it/s": 4.0, "ngp-no-skipping / ngp samples per ray": 9.6,
                       "ngp / neus it/s": 2.0}
+
+
+def test_rendered_ray_shares_count_rays_left_without_samples(bench, tiny_scene, tmp_path):
+    from conftest import tiny_config
+
+    small = {"pipeline.model.occupancy_grid.resolution": 8, "pipeline.model.field.n_levels": 4,
+             "pipeline.model.field.log2_hashmap_size": 10, "pipeline.model.field.max_resolution": 32}
+    trainer = tiny_config("ngp", tiny_scene, tmp_path / "ngp", **small).setup()
+    assert bench.rendered_ray_shares(trainer, batches=1)["foreground_rays_rendered"] == 1.0
+    trainer.model.occupancy_grid.binary.fill_(False)  # every sample skipped: nothing is rendered
+    assert bench.rendered_ray_shares(trainer, batches=1) == {"background_rays_rendered": 0.0,
+                                                             "foreground_rays_rendered": 0.0}
