@@ -21,8 +21,9 @@ from tqdm import tqdm
 from va_plugin.data.images import read_image, write_image
 from va_plugin.export.render import render_view
 
-MAP_SCALE = 0.25
-"""Colour-map range of the inconsistency pictures: a mean absolute RGB difference of 0.25 is full scale."""
+MIN_FULL_SCALE = 1e-3
+"""The inconsistency picture's colour map spans 0 .. the 99.5th percentile of all views' maps (so small
+differences early in training stay visible), never less than this."""
 ERROR_THRESHOLD = 0.05
 """A pixel counts as perturbed when the input differs from its clean render by more than this (mean RGB)."""
 
@@ -145,6 +146,7 @@ def write_inconsistency(pipeline, run_dir: Path, scale: float = 0.5, scene_dir: 
     views = inconsistency_maps(pipeline, scale=scale, progress=progress)
     height, width = views[0]["map"].shape
     injected = injected_error_maps(scene_dir, (width, height)) if scene_dir is not None else None
+    full_scale = max(float(np.percentile(np.stack([v["map"] for v in views]), 99.5)), MIN_FULL_SCALE)
     rows, summary = [], []
     for i, v in enumerate(views):
         entry = {"view": i, "mean_abs_difference": float(v["map"].mean()), "max": float(v["map"].max())}
@@ -152,11 +154,11 @@ def write_inconsistency(pipeline, run_dir: Path, scale: float = 0.5, scene_dir: 
             entry.update(overlap_scores(v["map"], injected[i]))
             entry["injected_mean"] = float(injected[i].mean())
         summary.append(entry)
-        rows.append(np.concatenate([v["input"], v["own"], v["canonical"], _colorize(v["map"], MAP_SCALE)], 1))
+        rows.append(np.concatenate([v["input"], v["own"], v["canonical"], _colorize(v["map"], full_scale)], 1))
     write_image(run_dir / "inconsistency.png", np.concatenate(rows, 0))
     record = {"columns": ["input", "render with own branch", "canonical render",
-                          f"|own - canonical| (full scale {MAP_SCALE})"],
-              "scale": scale, "views": summary}
+                          "|own - canonical| (inferno, 0 .. full_scale)"],
+              "full_scale": full_scale, "scale": scale, "views": summary}
     (run_dir / "inconsistency.json").write_text(json.dumps(record, indent=2))
     return run_dir / "inconsistency.png"
 

@@ -1,0 +1,121 @@
+"""Per-step cost of the view-adaptive phases against the wrapped backbone, from a trained state.
+
+A run's wall time is dominated by its steps; the adaptive method's steps cost more in phases 2 and 3.
+On a machine shared with other jobs, timing two whole runs one after the other mostly measures the
+other jobs, so this script times the phases *interleaved* (rounds of a few steps of each variant, in
+turn) from the same trained backbone state, and reports medians. The predicted run-time ratio is
+
+    (f1 * t_backbone + f2 * t_phase2 + f3 * t_phase3) / t_backbone    (+ the one-off skip check)
+
+with the phase fractions f of the adaptive method's config.
+
+    python benchmarks/bench_adaptive_overhead.py --backbone neus --checkpoint RUN --scene SCENE [--scene SCENE16]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import platform
+import statistics
+import time
+from pathlib import Path
+
+import torch
+
+from va_plugin.adaptive.field import BRANCHES, FUSION
+from va_plugin.adaptive.phases import view_residuals
+from va_plugin.config import apply_override
+from va_plugin.engine.trainer import load_checkpoint
+from va_plugin.registry import get_method
+
+
+def make_trainer(method: str, scene: Path, state: dict, out: Path, overrides=()):
+    config = get_method(method).make_config()
+    config.pipeline.datamanager.dataparser.data = Path(scene)
+    config.output_dir, config.progress, config.checkpoint_every = out, False, 10 ** 9
+    config.max_steps = 10 ** 6
+    for item in overrides:
+        apply_override(config, item)
+    trainer = config.setup()
+    model_state = state["model"]
+    target = trainer.model.state_dict()
+    if method.startswith("va-"):  # the backbone's field lives under field.base
+        model_state = {(k.replace("field.", "field.base.", 1) if k.startswith("field.") else k): v
+                       for k, v in model_state.items()}
+    missing = [k for k in model_state if k not in target]
+    if missing:
+        raise SystemExit(f"checkpoint does not fit {method}: {missing[:3]} ...")
+    target.update(model_state)
+    trainer.model.load_state_dict(target)
+    return trainer
+
+
+def one_step(trainer) -> float:
+    start = time.perf_counter()
+    trainer._step()
+    trainer.step += 1
+    return time.perf_counter() - start
+
+
+def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, steps: int) -> dict:
+    adaptive = f"va-{backbone}"
+    trainers = {backbone: make_trainer(backbone, scene, state, out / backbone)}
+    for name, phase in (("phase2", BRANCHES), ("phase3", FUSION)):
+        trainer = make_trainer(adaptive, scene, state, out / name)
+        trainer.model.field.set_phase(phase)
+        trainer.lr_multipliers["fields"] = trainer.model.field.config.shared_lr_scale
+        trainers[name] = trainer
+    times = {name: [] for name in trainers}
+    shares = []
+    for r in range(rounds + 1):
+        for name, trainer in trainers.items():
+            for _ in range(steps):
+                elapsed = one_step(trainer)
+                if r > 0:  # the first round warms up
+                    times[name].append(elapsed)
+                if name == "phase3" and r > 0:
+                    shares.append(trainer.model.field.adaptive_share)
+    start = time.perf_counter()
+    view_residuals(trainers["phase2"].pipeline)
+    check = time.perf_counter() - start
+    field_cfg = trainers["phase3"].model.field.config
+    medians = {name: statistics.median(v) for name, v in times.items()}
+    f1, f2 = field_cfg.pretrain_fraction, field_cfg.branch_fraction
+    f3 = 1.0 - f1 - f2
+    base = medians[backbone]
+    return {
+        "scene": str(scene), "views": trainers[backbone].pipeline.datamanager.num_train_views,
+        "median_step_s": {k: round(v, 4) for k, v in medians.items()},
+        "ratio_phase2": round(medians["phase2"] / base, 3), "ratio_phase3": round(medians["phase3"] / base, 3),
+        "adaptive_share_median": round(statistics.median(shares), 4) if shares else None,
+        "skip_check_s": round(check, 2),
+        "predicted_run_ratio": round((f1 * base + f2 * medians["phase2"] + f3 * medians["phase3"]) / base, 3),
+        "samples": {k: len(v) for k, v in times.items()},
+    }
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    parser.add_argument("--backbone", default="neus", choices=["neus", "ngp"])
+    parser.add_argument("--checkpoint", type=Path, required=True, help="a trained run of the backbone")
+    parser.add_argument("--scene", type=Path, action="append", required=True, help="scene folder(s)")
+    parser.add_argument("--rounds", type=int, default=6)
+    parser.add_argument("--steps", type=int, default=4, help="steps of each variant per round")
+    parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("benchmarks/results/adaptive_overhead.json"))
+    args = parser.parse_args()
+    torch.set_num_threads(args.threads)
+    state = load_checkpoint(args.checkpoint)
+    scratch = Path("/tmp/va-bench-overhead")
+    results = [measure(scene, args.backbone, state, scratch, args.rounds, args.steps) for scene in args.scene]
+    record = {"backbone": args.backbone, "checkpoint": str(args.checkpoint), "threads": args.threads,
+              "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
+              "date": time.strftime("%Y-%m-%d"), "results": results}
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps(record, indent=2))
+    print(json.dumps(record, indent=2))
+
+
+if __name__ == "__main__":
+    main()
