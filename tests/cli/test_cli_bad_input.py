@@ -188,15 +188,30 @@ def test_va_export_refuses_an_unknown_format_before_any_work(trained, capsys):
     assert not list(trained.glob("mesh*"))
 
 
-def test_va_export_mesh_of_a_field_without_surface_writes_nothing(trained, tmp_path, capsys):
-    run = tmp_path / "empty"
+def shifted_sdf_run(trained, run, shift):
+    """A copy of the trained run whose SDF is shifted by ``shift`` everywhere."""
     shutil.copytree(trained, run)
     path = list_checkpoints(run)[-1]
     state = torch.load(path, weights_only=False)
-    state["model"]["field.sdf_net.out.bias"] += 10.0  # the SDF is positive everywhere: nothing inside
+    state["model"]["field.sdf_net.out.bias"] += shift
     torch.save(state, path)
+    return run
+
+
+def test_va_export_mesh_of_a_field_without_surface_writes_nothing(trained, tmp_path, capsys):
+    run = shifted_sdf_run(trained, tmp_path / "empty", 10.0)  # positive everywhere: nothing inside
     one_line_error(capsys, export_cli.main(["mesh", "--load-dir", str(run), "--resolution", "16"]), "no surface")
     assert not list(run.glob("mesh*"))
+
+
+def test_va_export_says_when_the_mesh_is_the_bounding_sphere(trained, tmp_path, capsys):
+    # negative everywhere, as after the 100x learning-rate run on the mug: marching cubes finds only
+    # the clip at the bounding sphere, which is no object
+    run = shifted_sdf_run(trained, tmp_path / "full", -10.0)
+    assert export_cli.main(["mesh", "--load-dir", str(run), "--resolution", "16"]) == 0
+    err = capsys.readouterr().err.strip().splitlines()
+    assert err == ["warning: the field is inside the object over 100% of the bounding sphere, so most of the mesh "
+                   "is the sphere itself, not an object: the run diverged (or the scene radius is too small)"]
 
 
 @pytest.mark.parametrize("argv, message", [

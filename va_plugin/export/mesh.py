@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import warnings
 from pathlib import Path
 from typing import Optional
 
@@ -53,6 +54,10 @@ def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, wi
         raise VAError("the field has no surface inside the scene bound (no zero crossing); "
                       "the run may have diverged or trained too briefly")
     spacing = 2.0 * bound / (resolution - 1)
+    filled = inside_share_at_bound(values, bound, radius, spacing)
+    if filled > BOUND_FILLED_SHARE:
+        warnings.warn(f"the field is inside the object over {filled:.0%} of the bounding sphere, so most of the "
+                      "mesh is the sphere itself, not an object: the run diverged (or the scene radius is too small)")
     verts, faces, _, _ = marching_cubes(values, level=0.0, spacing=(spacing,) * 3)
     mesh = trimesh.Trimesh(verts - bound, faces, process=True)
     if mesh.volume < 0:
@@ -74,6 +79,19 @@ def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, wi
         rgb = (torch.cat(colors).numpy() * 255 + 0.5).astype(np.uint8)
         mesh.visual.vertex_colors = np.concatenate([rgb, np.full((len(rgb), 1), 255, np.uint8)], 1)
     return mesh
+
+
+BOUND_FILLED_SHARE = 0.5
+"""More than this share of the bounding sphere inside the object means the mesh is mostly that sphere."""
+
+
+def inside_share_at_bound(values: np.ndarray, bound: float, radius: float, spacing: float) -> float:
+    """Share of the grid points in the shell just inside the bounding sphere (two cells thick) where the
+    field is inside the object; ``values`` is the ``[R, R, R]`` grid of :func:`sample_grid`."""
+    axis = np.linspace(-bound, bound, values.shape[0])
+    r = np.sqrt(axis[:, None, None] ** 2 + axis[None, :, None] ** 2 + axis[None, None, :] ** 2)
+    shell = (r < radius) & (r > radius - 2.0 * spacing)
+    return float((values[shell] < 0).mean()) if shell.any() else 0.0
 
 
 def write_mesh(mesh: trimesh.Trimesh, path: Path) -> Path:
