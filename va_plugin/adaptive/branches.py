@@ -12,6 +12,8 @@ import math
 import torch
 from torch import nn
 
+from va_plugin.utils.stages import timed
+
 
 class ViewBranches(nn.Module):
     """``n_views`` residual MLPs of ``n_layers`` linear layers (``width`` hidden units), weights stacked.
@@ -41,6 +43,7 @@ class ViewBranches(nn.Module):
             self.weights.append(nn.Parameter(w))
             self.biases.append(nn.Parameter(bias))
 
+    @timed("mlp")
     def _mlp(self, x: torch.Tensor) -> torch.Tensor:
         """``[n_views, m, D] -> [n_views, m, D]``: branch k applied to row block k."""
         last = len(self.weights) - 1

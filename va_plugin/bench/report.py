@@ -350,6 +350,32 @@ def plot_against(rows: Sequence[Dict[str, Any]], x_key: str, metrics: Sequence[s
     return path
 
 
+def plot_stacked_bars(parts: Dict[str, Dict[str, float]], path: Path, title: str, xlabel: str) -> Optional[Path]:
+    """A horizontal bar per label (``parts``: label -> {part: value}), split into its parts, which have the
+    same colour in every bar (the parts of the first label set the order)."""
+    plt = _pyplot()
+    if plt is None or not parts:
+        return None
+    names = list(dict.fromkeys(name for values in parts.values() for name in values))
+    labels = list(parts)
+    fig, ax = plt.subplots(figsize=(10, 1.2 + 0.55 * len(labels)))
+    left = [0.0] * len(labels)
+    palette, extra = plt.get_cmap("tab10"), plt.get_cmap("Dark2")
+    for index, name in enumerate(names):
+        colour = palette(index) if index < 10 else extra(index % 8)
+        widths = [max(0.0, _nan(parts[label].get(name, 0.0))) for label in labels]
+        ax.barh(labels, widths, left=left, color=colour, label=name)
+        left = [a + b for a, b in zip(left, widths)]
+    ax.invert_yaxis()
+    ax.set(xlabel=xlabel, title=title)
+    ax.grid(axis="x", alpha=0.3)
+    ax.legend(fontsize=8, ncol=min(len(names), 5), loc="upper center", bbox_to_anchor=(0.5, -0.25 - 0.1 / len(labels)))
+    fig.tight_layout()
+    fig.savefig(path, dpi=110, bbox_inches="tight")
+    plt.close(fig)
+    return path
+
+
 def _nan(value: Any) -> float:
     return float("nan") if value is None else float(value)
 

@@ -82,13 +82,20 @@ def row_config(row: RowSpec, preset: BenchPreset, scene_dir: Path, run_dir: Path
     config.seed = seed
     config.device = device
     config.progress = False
-    every = max(1, config.max_steps // max(1, preset.curve_points))
-    config.checkpoint_every = every
-    config.keep_checkpoints = config.max_steps // every + 10  # room for interrupt checkpoints
+    checkpoint_along(config, preset.curve_points)
     extra = ADAPTIVE_OVERRIDES if row.adaptive else ()
     for assignment in (*preset.overrides_for(row.backbone), *extra, *row.overrides):
         apply_override(config, assignment)
     return config
+
+
+def checkpoint_along(config, points: int) -> int:
+    """Have a run write (and keep) a checkpoint every ``max_steps // points`` steps, for evaluating
+    error against training time afterwards (:func:`evaluate_checkpoints`); returns that interval."""
+    every = max(1, config.max_steps // max(1, points))
+    config.checkpoint_every = every
+    config.keep_checkpoints = config.max_steps // every + 10  # room for interrupt checkpoints
+    return every
 
 
 def fingerprint(config, evaluation: EvalSettings, out: Path) -> str:

@@ -27,6 +27,7 @@ from typing import Any, Dict, Optional
 import torch
 
 from va_plugin.errors import VAError
+from va_plugin.utils.stages import timed
 
 OK, SKIP, RESTORE = "ok", "skip", "restore"
 
@@ -90,6 +91,7 @@ class TrainingGuard:
         """What was wrong with the last bad step."""
 
     # -- the verdict on a step ------------------------------------------------------------------------
+    @timed("health")
     def check_loss(self, loss: torch.Tensor, terms: Dict[str, torch.Tensor]) -> str:
         """OK, SKIP (non-finite) or RESTORE (blow-up) for a step's total loss and its terms, before backward.
 
@@ -108,12 +110,14 @@ class TrainingGuard:
                 return RESTORE
         return OK
 
+    @timed("health")
     def check_gradients(self, parameters) -> str:
         """OK or SKIP for the gradients of the step's parameters."""
         if all_finite(p.grad for p in parameters):
             return OK
         return self._bad("non-finite gradient")
 
+    @timed("health")
     def check_parameters(self, parameters) -> str:
         """OK or RESTORE after the optimizer update."""
         if all_finite(p.detach() for p in parameters):
@@ -131,6 +135,7 @@ class TrainingGuard:
             return RESTORE
         return SKIP
 
+    @timed("health")
     def accept(self, terms: Dict[str, torch.Tensor]) -> None:
         """A step whose update was applied: its loss terms feed their running levels."""
         for name, term in terms.items():
@@ -139,6 +144,7 @@ class TrainingGuard:
         self.skips_in_a_row = 0
 
     # -- last good state ------------------------------------------------------------------------------
+    @timed("health")
     def maybe_snapshot(self, step: int, model: torch.nn.Module, optimizer: torch.optim.Optimizer,
                        force: bool = False) -> None:
         """Keep a copy of the current (good) parameters and optimizer state every ``snapshot_every`` steps.

@@ -22,6 +22,7 @@ from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.pipelines.base import Pipeline, PipelineConfig
 from va_plugin.utils.device import pick_device
+from va_plugin.utils.stages import stage, timed
 
 CHECKPOINT_DIR = "checkpoints"
 CHECKPOINT_GLOB = "step-*.ckpt"
@@ -249,6 +250,7 @@ class Trainer:
             json.dump(to_dict(self.config), handle, indent=2)
 
     # -- the loop -------------------------------------------------------------------------------
+    @timed("callbacks")
     def _run_callbacks(self, where: str) -> None:
         for callback in self.callbacks:
             if callback.where == where:
@@ -264,10 +266,12 @@ class Trainer:
         verdict = guard.check_loss(loss, loss_dict)
         if verdict == OK:
             guard.maybe_snapshot(self.step, self.model, self.optimizer)  # these parameters gave a sane loss
-            loss.backward()
+            with stage("backward"):
+                loss.backward()
             verdict = guard.check_gradients(params)
         if verdict == OK:
-            self.optimizer.step()
+            with stage("optimizer"):
+                self.optimizer.step()
             verdict = guard.check_parameters(params)
         if verdict == OK:
             guard.accept(loss_dict)
@@ -284,6 +288,18 @@ class Trainer:
         record.update(metrics)
         return record
 
+    def run_step(self) -> tuple[Dict[str, Any], float]:
+        """One training step with its callbacks (no logging, evaluation or checkpoint): its record and
+        its wall seconds, which are added to ``train_seconds``."""
+        start = time.perf_counter()
+        self._run_callbacks(BEFORE_STEP)
+        record = self._step()
+        self._run_callbacks(AFTER_STEP)
+        elapsed = time.perf_counter() - start
+        self.train_seconds += elapsed
+        self.step += 1
+        return record, elapsed
+
     def train(self) -> Dict[str, Any]:
         """Train to ``max_steps`` (from the current step); returns the final log record."""
         cfg = self.config
@@ -295,14 +311,8 @@ class Trainer:
         record: Dict[str, Any] = {}
         recent: List[float] = []
         while self.step < cfg.max_steps:
-            start = time.perf_counter()
-            self._run_callbacks(BEFORE_STEP)
-            record = self._step()
-            self._run_callbacks(AFTER_STEP)
-            elapsed = time.perf_counter() - start
-            self.train_seconds += elapsed
+            record, elapsed = self.run_step()
             recent = (recent + [elapsed])[-20:]
-            self.step += 1
             bar.update(1)
             record.update(self.model.diagnostics())
             record.update({"step": self.step, "train_seconds": round(self.train_seconds, 3),

@@ -16,6 +16,7 @@ from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo
 from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
+from va_plugin.utils.stages import stage, timed
 
 
 @dataclass
@@ -84,6 +85,7 @@ class NeuSModel(Model):
 
     # -- sampling -------------------------------------------------------------------------------
     @torch.no_grad()
+    @timed("sampling")
     def _coarse(self, ray_bundle: RayBundle) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Coarse edges ``[n_rays, n_samples + 2]``, their SDF, and which rays may hit a surface ``[n_rays]``."""
         cfg = self.config
@@ -100,6 +102,7 @@ class NeuSModel(Model):
         return edges, sdf, active
 
     @torch.no_grad()
+    @timed("sampling")
     def _sample_edges(self, ray_bundle: RayBundle, edges: torch.Tensor, sdf: torch.Tensor) -> torch.Tensor:
         """Section edges ``[n_rays, n_samples + n_importance + 2]``: the coarse ones, then up-sampled."""
         cfg = self.config
@@ -163,7 +166,7 @@ class NeuSModel(Model):
         samples = RaySamples.from_edges(ray_bundle, edges)
         pack = (lambda t: t) if keep is None else (lambda t: t[keep])  # noqa: E731
         unpack = (lambda t: t) if keep is None else (lambda t: scatter(t, keep))  # noqa: E731
-        with torch.enable_grad():
+        with torch.enable_grad(), stage("sdf_gradient"):  # the field's forward is timed on its own
             positions = pack(samples.positions).detach().requires_grad_(True)
             sdf, geo_features = self.field.geometry(positions)
             gradients = torch.autograd.grad(sdf, positions, torch.ones_like(sdf),

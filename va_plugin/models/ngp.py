@@ -26,6 +26,7 @@ from va_plugin.model_components.occupancy_grid import (OccupancyGrid, OccupancyG
 from va_plugin.model_components.samplers import uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo, wants_num_views
 from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
+from va_plugin.utils.stages import timed
 
 
 @dataclass
@@ -115,6 +116,7 @@ class NGPModel(Model):
         with torch.no_grad():
             return self._render(ray_bundle)
 
+    @timed("sampling")
     def _samples_to_evaluate(self, samples: RaySamples) -> tuple[torch.Tensor, Optional[tuple]]:
         """Which samples ``[n_rays, n_samples]`` the field must evaluate: inside the sphere, in an occupied
         cell, and (with early termination) in front of the point where the ray turns opaque.

@@ -13,6 +13,7 @@ from va_plugin.data.datamanager import DataManagerConfig
 from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.models.base import ModelConfig, SceneInfo
 from va_plugin.models.neus import NeuSModelConfig
+from va_plugin.utils.stages import stage
 
 
 @dataclass
@@ -40,9 +41,11 @@ class Pipeline(nn.Module):
     def train_step(self, step: int) -> Tuple[Dict[str, torch.Tensor], Dict[str, float]]:
         """Losses (weighted, to be summed) and metrics of one training batch."""
         self.model.update_step(step)
-        ray_bundle, batch = self.datamanager.next_train(step)
-        outputs = self.model.get_outputs(ray_bundle)
-        loss_dict = self.model.get_loss_dict(outputs, batch)
+        with stage("data"):
+            ray_bundle, batch = self.datamanager.next_train(step)
+        with stage("rendering"):  # what the stages nested in the model's forward (sampling, ...) leave
+            outputs = self.model.get_outputs(ray_bundle)
+            loss_dict = self.model.get_loss_dict(outputs, batch)
         metrics = self.model.get_metrics_dict(outputs, batch)
         return loss_dict, metrics
 
