@@ -64,14 +64,16 @@ def main(argv: Optional[List[str]] = None) -> int:
         return EXIT_INTERRUPTED
     from va_plugin.eval.evaluate import evaluate_run
     from va_plugin.export.mesh import extract_mesh, write_mesh
-    from va_plugin.export.render import render_test_views, render_turntable
+    from va_plugin.export.render import render_turntable
 
     run = Path(args.output_dir)
     pipeline = trainer.pipeline
-    mesh_path = write_mesh(extract_mesh(pipeline.model, resolution=128), run / "mesh.ply")
+    mesh = extract_mesh(pipeline.model, resolution=128)
+    mesh_path = write_mesh(mesh, run / "mesh.ply")
     state = {"method_name": config.method_name, "step": trainer.step, "train_seconds": trainer.train_seconds}
-    result = evaluate_run(pipeline, state, image_scale=0.5, max_views=4, progress=not args.no_progress)
-    render_test_views(pipeline, run / "renders" / "test_views", scale=0.5, max_views=4, progress=not args.no_progress)
+    # the mesh just written is the one scored, and the scored views are the ones saved: nothing twice
+    result = evaluate_run(pipeline, state, image_scale=0.5, max_views=4, progress=not args.no_progress,
+                          mesh=mesh, render_dir=run / "renders" / "test_views")
     frames = render_turntable(pipeline.model, run / "renders" / "turntable", n_frames=16, resolution=128,
                               progress=not args.no_progress)
     sheet = contact_sheet([f for f in frames if f.suffix == ".png"], run / "turntable.png")

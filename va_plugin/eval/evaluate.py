@@ -9,16 +9,14 @@ from pathlib import Path
 from typing import Any, Dict, Optional
 
 import numpy as np
-import torch
 import trimesh
-from tqdm import tqdm
 
 from va_plugin.errors import DataError
 from va_plugin.eval.geometry import geometry_metrics
 from va_plugin.eval.image import psnr, ssim
-from va_plugin.eval.lpips import LPIPSWeightsMissing, lpips
+from va_plugin.eval.lpips import LPIPSWeightsMissing, lpips, weight_paths
 from va_plugin.export.mesh import extract_mesh
-from va_plugin.export.render import render_view
+from va_plugin.export.render import held_out_views, write_pair
 
 FSCORE_THRESHOLD = 0.02
 """F-score distance threshold in world units (objects fit a unit box): 2% of the object's size."""
@@ -50,46 +48,51 @@ def load_mesh(path: Path) -> trimesh.Trimesh:
 
 
 def image_metrics(pipeline, image_scale: float = 1.0, max_views: Optional[int] = None, use_lpips: bool = True,
-                  progress: bool = True) -> Dict[str, Any]:
-    """Mean PSNR, SSIM and LPIPS over the held-out views, rendered on the canonical path."""
-    import cv2
-
+                  progress: bool = True, render_dir: Optional[Path] = None) -> Dict[str, Any]:
+    """Mean PSNR, SSIM and LPIPS over the held-out views, rendered on the canonical path; with
+    ``render_dir`` each view is also written there as ``view_XXX.png`` (render | ground truth)."""
     test = pipeline.datamanager.test
     if test is None:
         return {}
-    cameras = test.cameras.scaled(image_scale) if image_scale != 1.0 else test.cameras
-    count = len(test) if max_views is None else min(max_views, len(test))
+    if use_lpips:
+        weight_paths()  # raises LPIPSWeightsMissing before any view is rendered
     scores: Dict[str, list] = {"psnr": [], "ssim": [], "lpips": []}
-    for i in tqdm(range(count), desc="evaluating views", disable=not progress):
-        render = render_view(pipeline.model, cameras, i)
-        target = test.images[i].numpy()
-        if image_scale != 1.0:
-            target = cv2.resize(target, (cameras.width, cameras.height), interpolation=cv2.INTER_AREA)
+    size = None
+    for i, render, target in held_out_views(pipeline, image_scale, max_views, progress, desc="evaluating views"):
         scores["psnr"].append(psnr(render, target))
         scores["ssim"].append(ssim(render, target))
         if use_lpips:
             scores["lpips"].append(lpips(render, target))
+        if render_dir is not None:
+            write_pair(render_dir, i, render, target)
+        size = render.shape[:2]
     out: Dict[str, Any] = {k: float(np.mean(v)) for k, v in scores.items() if v}
-    out["image_params"] = {"views": count, "width": cameras.width, "height": cameras.height,
-                           "background": list(test.background)}
+    out["image_params"] = {"views": len(scores["psnr"]), "width": None if size is None else int(size[1]),
+                           "height": None if size is None else int(size[0]), "background": list(test.background)}
     return out
 
 
 def evaluate_run(pipeline, state: Dict[str, Any], scene_dir: Optional[Path] = None, mesh_resolution: int = 128,
                  image_scale: float = 1.0, max_views: Optional[int] = None, n_samples: int = 100_000,
-                 progress: bool = True) -> Dict[str, Any]:
-    """All metrics of a trained run: psnr, ssim, lpips, cd, iou, fscore, plus timing and parameters."""
+                 progress: bool = True, mesh: Optional[trimesh.Trimesh] = None,
+                 render_dir: Optional[Path] = None) -> Dict[str, Any]:
+    """All metrics of a trained run: psnr, ssim, lpips, cd, iou, fscore, plus timing and parameters.
+
+    ``mesh``: the run's mesh when the caller has already extracted it (at ``mesh_resolution``), so it is
+    not extracted twice; ``render_dir``: also write the held-out renders there (see :func:`image_metrics`)."""
     started = time.perf_counter()
     result: Dict[str, Any] = {"method": state.get("method_name"), "steps": int(state["step"]),
                               "train_seconds": float(state.get("train_seconds", 0.0))}
     try:
-        result.update(image_metrics(pipeline, image_scale, max_views, use_lpips=True, progress=progress))
+        result.update(image_metrics(pipeline, image_scale, max_views, use_lpips=True, progress=progress,
+                                    render_dir=render_dir))
     except LPIPSWeightsMissing as exc:
-        result.update(image_metrics(pipeline, image_scale, max_views, use_lpips=False, progress=progress))
+        result.update(image_metrics(pipeline, image_scale, max_views, use_lpips=False, progress=progress,
+                                    render_dir=render_dir))
         result["lpips_missing"] = str(exc)
     gt_path = ground_truth_mesh_path(pipeline, scene_dir)
     if gt_path is not None:
-        pred = extract_mesh(pipeline.model, resolution=mesh_resolution, with_color=False)
+        pred = mesh if mesh is not None else extract_mesh(pipeline.model, resolution=mesh_resolution, with_color=False)
         geo = geometry_metrics(pred, load_mesh(gt_path), n_samples=n_samples, threshold=FSCORE_THRESHOLD)
         result.update({"cd": geo["chamfer_distance"], "iou": geo["volume_iou"], "fscore": geo["f_score"],
                        "geometry_params": {**geo["params"], "mesh_resolution": mesh_resolution,

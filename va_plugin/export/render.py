@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import List
+from typing import Iterator, List, Tuple
 
 import cv2
 import numpy as np
@@ -60,21 +60,32 @@ def render_turntable(model, out_dir: Path, n_frames: int = 24, resolution: int =
     return paths
 
 
-def render_test_views(pipeline, out_dir: Path, scale: float = 1.0, max_views: int | None = None,
-                      progress: bool = True) -> List[Path]:
-    """Each held-out view rendered next to its ground truth: ``view_XXX.png`` (render | target)."""
+def held_out_views(pipeline, scale: float = 1.0, max_views: int | None = None, progress: bool = True,
+                   desc: str = "test views") -> Iterator[Tuple[int, np.ndarray, np.ndarray]]:
+    """``(index, render, target)`` of the first ``max_views`` held-out views (all when None), rendered on
+    the canonical path at ``scale`` of the scene's size, the target resized to match (area filter)."""
     test = pipeline.datamanager.test
     if test is None:
-        return []
+        return
     cameras = test.cameras.scaled(scale) if scale != 1.0 else test.cameras
     count = len(test) if max_views is None else min(max_views, len(test))
-    paths = []
-    for i in tqdm(range(count), desc="test views", disable=not progress):
+    for i in tqdm(range(count), desc=desc, disable=not progress):
         render = render_view(pipeline.model, cameras, i)
         target = test.images[i].numpy()
         if scale != 1.0:
             target = cv2.resize(target, (cameras.width, cameras.height), interpolation=cv2.INTER_AREA)
-        path = Path(out_dir) / f"view_{i:03d}.png"
-        write_image(path, np.concatenate([render, target], axis=1))
-        paths.append(path)
-    return paths
+        yield i, render, target
+
+
+def write_pair(out_dir: Path, index: int, render: np.ndarray, target: np.ndarray) -> Path:
+    """``view_XXX.png``: the render next to its ground truth."""
+    path = Path(out_dir) / f"view_{index:03d}.png"
+    write_image(path, np.concatenate([render, target], axis=1))
+    return path
+
+
+def render_test_views(pipeline, out_dir: Path, scale: float = 1.0, max_views: int | None = None,
+                      progress: bool = True) -> List[Path]:
+    """Each held-out view rendered next to its ground truth: ``view_XXX.png`` (render | target)."""
+    return [write_pair(out_dir, i, render, target)
+            for i, render, target in held_out_views(pipeline, scale, max_views, progress)]
