@@ -89,3 +89,23 @@ def render_test_views(pipeline, out_dir: Path, scale: float = 1.0, max_views: in
     """Each held-out view rendered next to its ground truth: ``view_XXX.png`` (render | target)."""
     return [write_pair(out_dir, i, render, target)
             for i, render, target in held_out_views(pipeline, scale, max_views, progress)]
+
+
+def mesh_views(meshes: List["trimesh.Trimesh"], n_views: int = 4, resolution: int = 128,
+               elevation_deg: float = 30.0, background: float = 1.0) -> np.ndarray:
+    """One row per mesh of ``n_views`` grey shaded renders (fixed light, SyncDreamer orbit, azimuths
+    ``360 k / n_views``): a picture for comparing reconstructed meshes with each other and with the
+    ground truth, as geometry only (vertex colours are ignored)."""
+    from va_plugin.data.scenes.raycast import MeshRenderer
+
+    cameras = turntable_cameras(n_views, resolution, elevation_deg)
+    grey = lambda hits: np.full((hits.points.shape[0], 3), 0.8, np.float32)  # noqa: E731
+    rows = []
+    for mesh in meshes:
+        renderer = MeshRenderer(mesh, grey)
+        tiles = []
+        for k in range(n_views):
+            rgba = renderer.render(cameras, k)
+            tiles.append(rgba[..., :3] * rgba[..., 3:] + background * (1.0 - rgba[..., 3:]))
+        rows.append(np.concatenate(tiles, axis=1))
+    return np.concatenate(rows, axis=0)
