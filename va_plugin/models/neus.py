@@ -8,6 +8,7 @@ from typing import Dict, List, Optional, Type
 import torch
 from torch import nn
 
+from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
@@ -44,6 +45,12 @@ class NeuSModelConfig(ModelConfig):
     and no eikonal term. Off by default: see benchmarks/RESULTS.md (issue 4) for what it measured."""
     variance_init: float = 0.3
     """Initial v of inv_s = exp(10 v)."""
+    sdf_gradient: str = "autograd"
+    """How the SDF's gradient (the cosine term of alpha, the normals, the eikonal loss) is computed:
+    "autograd" (``torch.autograd.grad`` with ``create_graph``, so the loss's backward is a double
+    backward) or "analytic" (the field writes out the MLP's chain rule next to its forward pass:
+    the same values to float rounding, one plain backward; needs a field with
+    ``geometry_and_gradient``, as the SDF field has). See the README for the measured speed."""
     eikonal_weight: float = 0.1
     """Weight of the eikonal loss."""
     mask_weight: float = 0.1
@@ -61,6 +68,11 @@ class NeuSModel(Model):
             if _wants_views(config.field) else config.field.setup()
         if self.field.geometry_kind != "sdf":
             raise ValueError("NeuSModel needs a field whose geometry is an SDF")
+        if config.sdf_gradient not in SDF_GRADIENTS:
+            raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
+        if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
+            raise ConfigError(f"sdf_gradient='analytic' needs a field with geometry_and_gradient; "
+                              f"{type(self.field).__name__} has none (use 'autograd')")
         self.variance = SingleVariance(config.variance_init)
         self.samples_per_ray = 0.0
         """Samples per batch ray evaluated with gradients in the last training batch (skipped rays count 0)."""
@@ -166,11 +178,16 @@ class NeuSModel(Model):
         samples = RaySamples.from_edges(ray_bundle, edges)
         pack = (lambda t: t) if keep is None else (lambda t: t[keep])  # noqa: E731
         unpack = (lambda t: t) if keep is None else (lambda t: scatter(t, keep))  # noqa: E731
-        with torch.enable_grad(), stage("sdf_gradient"):  # the field's forward is timed on its own
-            positions = pack(samples.positions).detach().requires_grad_(True)
-            sdf, geo_features = self.field.geometry(positions)
-            gradients = torch.autograd.grad(sdf, positions, torch.ones_like(sdf),
-                                            create_graph=self.training, retain_graph=True)[0]
+        if self.config.sdf_gradient == "analytic":  # a graph only while training: evaluation records nothing
+            with torch.set_grad_enabled(self.training), stage("sdf_gradient"):
+                positions = pack(samples.positions).detach()
+                sdf, geo_features, gradients = self.field.geometry_and_gradient(positions)
+        else:
+            with torch.enable_grad(), stage("sdf_gradient"):  # the field's forward is timed on its own
+                positions = pack(samples.positions).detach().requires_grad_(True)
+                sdf, geo_features = self.field.geometry(positions)
+                gradients = torch.autograd.grad(sdf, positions, torch.ones_like(sdf),
+                                                create_graph=self.training, retain_graph=True)[0]
         if not self.training:
             sdf, geo_features, gradients = sdf.detach(), geo_features.detach(), gradients.detach()
         directions = pack(samples.directions[:, None, :].expand(samples.positions.shape))
@@ -222,6 +239,9 @@ class NeuSModel(Model):
             camera = torch.full(points.shape[:-1], -1, dtype=torch.long, device=points.device)
             return self.field.color(points, -normals, normals, geo_features, camera)["rgb"]
 
+
+SDF_GRADIENTS = ("autograd", "analytic")
+"""The values of ``NeuSModelConfig.sdf_gradient``."""
 
 PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")
 

@@ -29,3 +29,20 @@ class PositionalEncoding(nn.Module):
         scaled = (x[..., None, :] * self.frequencies[:, None]).flatten(-2)
         parts = [x] if self.include_input else []
         return torch.cat(parts + [torch.sin(scaled), torch.cos(scaled)], dim=-1)
+
+    def pull_back(self, x: torch.Tensor, grad_encoding: torch.Tensor) -> torch.Tensor:
+        """Chain rule through the encoding: ``grad_encoding [..., output_dim]`` (a derivative with
+        respect to gamma(x)) becomes the derivative with respect to ``x``, ``[..., in_dim]``.
+
+        d sin(f x)/dx = f cos(f x) and d cos(f x)/dx = -f sin(f x), so this is a few elementwise
+        products, differentiable in both arguments (usable inside a graph that is backpropagated)."""
+        if self.n_frequencies == 0:
+            return grad_encoding
+        lead, d, n = x.shape[:-1], self.in_dim, self.n_frequencies
+        offset = d if self.include_input else 0
+        g_sin = grad_encoding[..., offset:offset + n * d].reshape(*lead, n, d)
+        g_cos = grad_encoding[..., offset + n * d:].reshape(*lead, n, d)
+        freqs = self.frequencies[:, None]
+        scaled = x[..., None, :] * freqs
+        out = ((g_sin * torch.cos(scaled) - g_cos * torch.sin(scaled)) * freqs).sum(-2)
+        return out + grad_encoding[..., :d] if self.include_input else out
