@@ -11,7 +11,7 @@ from va_plugin.errors import ConfigError
 
 
 def _outputs_and_grads(model, rays, batch, mode):
-    model.config.sdf_gradient = mode
+    model.sdf_gradient = mode
     model.zero_grad(set_to_none=True)
     torch.manual_seed(3)  # the same sample jitter for both paths
     outputs = model.get_outputs(rays)
@@ -46,7 +46,7 @@ def test_evaluation_renders_the_same_without_a_graph(tiny_scene, tmp_path):
     rays, _ = trainer.pipeline.datamanager.next_train(0)
     renders = {}
     for mode in ("autograd", "analytic"):
-        model.config.sdf_gradient = mode
+        model.sdf_gradient = mode
         renders[mode] = model.render_rays(rays, keys=("rgb", "depth", "accumulation"))
     assert not any(t.requires_grad for t in renders["analytic"].values())
     for key, ref in renders["autograd"].items():
@@ -74,3 +74,16 @@ def test_training_through_the_registry(method, tiny_scene, tmp_path):
 def test_unknown_gradient_mode_is_refused(tiny_scene, tmp_path):
     with pytest.raises(ConfigError, match="sdf_gradient must be one of"):
         tiny_config("neus", tiny_scene, tmp_path / "run", **{"pipeline.model.sdf_gradient": "numeric"}).setup()
+
+
+def test_auto_picks_the_analytic_path_where_the_field_supports_it(tiny_scene, tmp_path):
+    model = tiny_config("neus", tiny_scene, tmp_path / "a").setup().model
+    assert model.config.sdf_gradient == "auto" and model.sdf_gradient == "analytic"
+    model = tiny_config("va-neus", tiny_scene, tmp_path / "b").setup().model
+    assert model.sdf_gradient == "analytic"
+    # an activation the hand-written chain rule does not cover falls back to autograd
+    from va_plugin.models.neus import _supports_analytic_gradient
+
+    model.field.base.sdf_net.activation = torch.nn.Tanh()
+    assert not _supports_analytic_gradient(model.field)
+    assert not _supports_analytic_gradient(torch.nn.Linear(3, 1))  # no geometry_and_gradient at all

@@ -45,12 +45,13 @@ class NeuSModelConfig(ModelConfig):
     and no eikonal term. Off by default: see benchmarks/RESULTS.md (issue 4) for what it measured."""
     variance_init: float = 0.3
     """Initial v of inv_s = exp(10 v)."""
-    sdf_gradient: str = "autograd"
+    sdf_gradient: str = "auto"
     """How the SDF's gradient (the cosine term of alpha, the normals, the eikonal loss) is computed:
     "autograd" (``torch.autograd.grad`` with ``create_graph``, so the loss's backward is a double
-    backward) or "analytic" (the field writes out the MLP's chain rule next to its forward pass:
+    backward), "analytic" (the field writes out the MLP's chain rule next to its forward pass:
     the same values to float rounding, one plain backward; needs a field with
-    ``geometry_and_gradient``, as the SDF field has). See the README for the measured speed."""
+    ``geometry_and_gradient``, as the SDF field has), or "auto": analytic when the field supports it,
+    else autograd. See the README for the measured speed."""
     eikonal_weight: float = 0.1
     """Weight of the eikonal loss."""
     mask_weight: float = 0.1
@@ -73,6 +74,9 @@ class NeuSModel(Model):
         if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
             raise ConfigError(f"sdf_gradient='analytic' needs a field with geometry_and_gradient; "
                               f"{type(self.field).__name__} has none (use 'autograd')")
+        self.sdf_gradient = config.sdf_gradient if config.sdf_gradient != "auto" else \
+            ("analytic" if _supports_analytic_gradient(self.field) else "autograd")
+        """The gradient path in use (``config.sdf_gradient`` with "auto" resolved)."""
         self.variance = SingleVariance(config.variance_init)
         self.samples_per_ray = 0.0
         """Samples per batch ray evaluated with gradients in the last training batch (skipped rays count 0)."""
@@ -178,7 +182,7 @@ class NeuSModel(Model):
         samples = RaySamples.from_edges(ray_bundle, edges)
         pack = (lambda t: t) if keep is None else (lambda t: t[keep])  # noqa: E731
         unpack = (lambda t: t) if keep is None else (lambda t: scatter(t, keep))  # noqa: E731
-        if self.config.sdf_gradient == "analytic":  # a graph only while training: evaluation records nothing
+        if self.sdf_gradient == "analytic":  # a graph only while training: evaluation records nothing
             with torch.set_grad_enabled(self.training), stage("sdf_gradient"):
                 positions = pack(samples.positions).detach()
                 sdf, geo_features, gradients = self.field.geometry_and_gradient(positions)
@@ -240,8 +244,20 @@ class NeuSModel(Model):
             return self.field.color(points, -normals, normals, geo_features, camera)["rgb"]
 
 
-SDF_GRADIENTS = ("autograd", "analytic")
+SDF_GRADIENTS = ("auto", "autograd", "analytic")
 """The values of ``NeuSModelConfig.sdf_gradient``."""
+
+
+def _supports_analytic_gradient(field) -> bool:
+    """Whether ``field.geometry_and_gradient`` exists and handles this field's network (its activations)."""
+    if not hasattr(field, "geometry_and_gradient"):
+        return False
+    try:
+        with torch.no_grad():
+            field.geometry_and_gradient(torch.zeros(1, 3, device=next(field.parameters()).device))
+    except NotImplementedError:
+        return False
+    return True
 
 PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")
 
