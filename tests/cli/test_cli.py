@@ -64,3 +64,22 @@ def test_export_without_checkpoint(tmp_path, capsys):
     (tmp_path / "run").mkdir()
     assert export_cli.main(["mesh", "--load-dir", str(tmp_path / "run")]) == 2
     assert "holds no checkpoint" in capsys.readouterr().err
+
+
+def test_demo_trains_neus_with_its_own_budget_unless_told_otherwise():
+    from va_plugin.cli import demo
+    from va_plugin.registry import discover_methods
+
+    methods = discover_methods()
+
+    def config(*argv):
+        args = demo.demo_train_args(demo.build_parser().parse_args(list(argv)), methods)
+        return train_cli.make_config(args, methods)
+
+    default = config()
+    assert default.max_steps == demo.DEMO_STEPS["neus"] and default.pipeline.model.skip_far_samples
+    assert config("--steps", "7").max_steps == 7 and config("--steps", "7").pipeline.model.skip_far_samples
+    fast = config("--preset", "fast")  # a preset is taken as it is
+    assert fast.max_steps == methods["neus"].make_config("fast").max_steps and not fast.pipeline.model.skip_far_samples
+    ngp = config("--method", "ngp")
+    assert ngp.max_steps == methods["ngp"].make_config().max_steps

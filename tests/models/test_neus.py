@@ -24,7 +24,8 @@ def test_sdf_band_hand_computed():
 
 
 def test_far_sample_skipping_renders_like_every_sample(tiny_scene, tmp_path):
-    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.n_samples": 16})
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.n_samples": 16,
+                                                "pipeline.model.skip_far_samples": False})
     model = trainer.model
     with torch.no_grad():
         model.variance.variance.fill_(0.5)  # inv_s = e^5 ~ 148: a band narrow enough to drop samples

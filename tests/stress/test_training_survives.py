@@ -117,8 +117,10 @@ def test_va_neus_at_100x_learning_rate_survives(tiny_scene, tmp_path):
     mesh, or the one-line 'no surface' error."""
     from va_plugin.export.mesh import extract_mesh
 
+    # skip_far_samples pinned off: this exact run is the one known to blow up within 9 steps (with the
+    # band on, the same learning rate happens to stay finite here, so there would be nothing to roll back)
     overrides = {"scheduler.warmup_steps": 0, "pipeline.model.field.skip_consistent_scenes": "false",
-                 "pipeline.model.field.diagnostics_scale": 0}
+                 "pipeline.model.field.diagnostics_scale": 0, "pipeline.model.skip_far_samples": False}
     trainer = tiny_config("va-neus", tiny_scene, tmp_path, steps=9, **overrides).setup()
     for group in trainer.config.optimizers.values():
         group.lr *= 100
