@@ -9,7 +9,7 @@ import torch
 
 from conftest import tiny_config
 from va_plugin.cli import train as train_cli
-from va_plugin.engine.health import TrainingDiverged
+from va_plugin.engine.health import HealthConfig, TrainingDiverged, TrainingGuard
 from va_plugin.engine.trainer import list_checkpoints
 from va_plugin.errors import VAError
 from va_plugin.registry import discover_methods
@@ -180,6 +180,35 @@ def test_a_hopeless_run_stops_with_one_line_and_no_checkpoint(tiny_scene, tmp_pa
     assert code == 2
     assert err[-1].startswith("error: training diverged") and "lower the learning rate" in err[-1]
     assert list_checkpoints(run) == []  # nothing that looks like a usable run
+
+
+@pytest.mark.parametrize("skip_far_samples", [False, True])
+def test_a_hopeless_run_stops_also_when_inv_s_collapses_without_nan(tiny_scene, tmp_path, capsys, skip_far_samples):
+    """With neus's SDF band on, a 1e36 learning rate throws inv_s to its clamp (1e6) without a single
+    NaN; the guard must still call it divergence."""
+    run = tmp_path / "run"
+    code = train_cli.main(["neus", "--data", str(tiny_scene), "--output-dir", str(run), "--steps", "40",
+                           "--no-progress", "--device", "cpu", "--set", "pipeline.datamanager.rays_per_batch=16",
+                           "--set", "pipeline.model.n_samples=8", "--set", "pipeline.model.n_importance=8",
+                           "--set", f"pipeline.model.skip_far_samples={str(skip_far_samples).lower()}",
+                           "--set", "optimizers.fields.lr=1e36", "--set", "scheduler.warmup_steps=0",
+                           "--set", "health.max_restores=2", "--set", "health.max_skips_in_a_row=2"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and err[-1].startswith("error: training diverged")
+    assert list_checkpoints(run) == []
+
+
+def test_collapsed_saturated_or_nan_inv_s_is_rolled_back():
+    guard = TrainingGuard(HealthConfig(), inv_s_start=20.0)
+    params = [torch.ones(3)]
+    assert guard.check_parameters(params, inv_s=0.5) == "ok"  # diverging, but not collapsed: warned only
+    assert guard.check_parameters(params, inv_s=0.19) == "restore" and "collapsed" in guard.reason
+    assert guard.check_parameters(params, inv_s=float("nan")) == "restore"
+    assert guard.check_parameters(params, inv_s=None) == "ok"  # models without inv_s
+    assert guard.check_parameters(params, inv_s=5e4) == "ok"
+    assert guard.check_parameters(params, inv_s=1e6) == "restore" and "shot up" in guard.reason
+    off = TrainingGuard(HealthConfig(inv_s_collapse=0.0, inv_s_saturation=0.0), inv_s_start=20.0)
+    assert off.check_parameters(params, inv_s=1e-6) == "ok" and off.check_parameters(params, inv_s=1e6) == "ok"
 
 
 def test_guard_options_are_checked(tiny_scene, tmp_path):

@@ -25,11 +25,6 @@ DEMO_STEPS = {"neus": 350}
 is 500 steps; 350 keep the whole demo (scene, training, mesh, evaluation, turntable) within 5 minutes on
 2 idle cores, at a measured cost in accuracy recorded in benchmarks/RESULTS.md."""
 
-DEMO_OVERRIDES = {"neus": ["pipeline.model.skip_far_samples=true"]}
-"""Options the demo turns on (when no preset is asked for): ``neus``'s SDF-band skipping, 1.14-1.46x faster
-at unchanged accuracy; off in ``neus`` itself only because the training guard does not yet catch runs
-at absurd learning rates with it (benchmarks/RESULTS.md, "ngp and skipping")."""
-
 
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="va-demo", description=__doc__.splitlines()[0])
@@ -57,11 +52,9 @@ def contact_sheet(frames: List[Path], out: Path, columns: int = 8) -> Path:
 
 def demo_train_args(args: argparse.Namespace, methods) -> argparse.Namespace:
     """The ``va-train`` arguments the demo trains with: va-train's defaults for every flag the demo does not
-    have (generator options, seed, ...), the demo's step budget and options unless a preset is asked for."""
+    have (generator options, seed, ...), the demo's step budget unless a preset is asked for."""
     train_args = build_train_parser(methods).parse_args([args.method])
     steps = args.steps if args.steps is not None or args.preset else DEMO_STEPS.get(args.method)
-    if not args.preset:
-        train_args.overrides = list(DEMO_OVERRIDES.get(args.method, []))
     train_args.__dict__.update(preset=args.preset, output_dir=args.output_dir, steps=steps, device=args.device,
                                no_progress=args.no_progress, default_scene_resolution=args.resolution)
     return train_args

@@ -8,7 +8,11 @@ The trainer asks a :class:`TrainingGuard` about every step:
   the last good state (parameters and optimizer state, kept in memory every ``snapshot_every`` steps) is
   restored and the learning rates are multiplied by ``lr_backoff``;
 * inv_s (NeuS's sharpness) falling below its value at the start of training: a sign of divergence,
-  reported once as a warning and in every log record (``inv_s_below_start``).
+  reported once as a warning and in every log record (``inv_s_below_start``);
+* inv_s leaving its sane range, collapsed below ``inv_s_collapse`` times its start value (the surface
+  dissolved into fog) or shot up to ``inv_s_saturation`` (next to its clamp at 1e6: a step function
+  that passes no gradient): an absurd learning rate can do either in one step without any NaN, so
+  it is treated like a blow-up: the last good state is restored with lower learning rates.
 
 Each kind of event warns once; the counts go to ``metrics.jsonl`` (``bad_steps``, ``restores``,
 ``lr_scale``). A run that still blows up after ``max_restores`` restores stops with
@@ -55,6 +59,12 @@ class HealthConfig:
     """Restores after which training stops with a clear error."""
     inv_s_tolerance: float = 0.1
     """inv_s counts as below its start when it falls more than this fraction under it."""
+    inv_s_collapse: float = 0.01
+    """inv_s below this fraction of its start value is a collapse, rolled back like a blow-up (0: never).
+    Healthy NeuS runs only raise inv_s; a diverging one can dip below its start, but not a hundredfold."""
+    inv_s_saturation: float = 1e5
+    """inv_s at or above this counts as saturated, rolled back like a blow-up (0: never). Healthy runs end
+    at 1e2-1e4; 1e6 is its clamp."""
 
     def validate(self) -> None:
         from va_plugin.errors import ConfigError
@@ -64,8 +74,10 @@ class HealthConfig:
         if self.snapshot_every < 1 or self.max_skips_in_a_row < 1 or self.max_restores < 0:
             raise ConfigError("health.snapshot_every and health.max_skips_in_a_row must be at least 1, "
                               "health.max_restores at least 0")
-        if self.spike_factor < 0 or self.spike_floor < 0 or self.inv_s_tolerance < 0:
-            raise ConfigError("health.spike_factor, health.spike_floor and health.inv_s_tolerance must be >= 0")
+        if self.spike_factor < 0 or self.spike_floor < 0 or self.inv_s_tolerance < 0 or self.inv_s_collapse < 0 \
+                or self.inv_s_saturation < 0:
+            raise ConfigError("health.spike_factor, health.spike_floor, health.inv_s_tolerance, "
+                              "health.inv_s_collapse and health.inv_s_saturation must be >= 0")
 
 
 def all_finite(tensors) -> bool:
@@ -118,13 +130,24 @@ class TrainingGuard:
         return self._bad("non-finite gradient")
 
     @timed("health")
-    def check_parameters(self, parameters) -> str:
-        """OK or RESTORE after the optimizer update."""
-        if all_finite(p.detach() for p in parameters):
-            return OK
-        self.bad_steps += 1
-        self.reason = "parameters turned non-finite after the update"
-        return RESTORE
+    def check_parameters(self, parameters, inv_s: Optional[float] = None) -> str:
+        """OK or RESTORE after the optimizer update (non-finite parameters, or ``inv_s`` collapsed or saturated)."""
+        if not all_finite(p.detach() for p in parameters):
+            self.bad_steps += 1
+            self.reason = "parameters turned non-finite after the update"
+            return RESTORE
+        floor = self.config.inv_s_collapse * (self.inv_s_start or 0.0)
+        if inv_s is not None and floor > 0 and not inv_s >= floor:  # a NaN inv_s counts too
+            self.bad_steps += 1
+            self.reason = (f"inv_s collapsed to {inv_s:.3g} (it started at {self.inv_s_start:.3g}): the surface "
+                           "dissolved")
+            return RESTORE
+        ceiling = self.config.inv_s_saturation
+        if inv_s is not None and ceiling > 0 and inv_s >= ceiling:
+            self.bad_steps += 1
+            self.reason = f"inv_s shot up to {inv_s:.3g} (it started at {self.inv_s_start:.3g}): the surface froze"
+            return RESTORE
+        return OK
 
     def _bad(self, what: str) -> str:
         self.bad_steps += 1

@@ -272,7 +272,7 @@ class Trainer:
         if verdict == OK:
             with stage("optimizer"):
                 self.optimizer.step()
-            verdict = guard.check_parameters(params)
+            verdict = guard.check_parameters(params, self.model.sharpness())
         if verdict == OK:
             guard.accept(loss_dict)
         else:

@@ -88,6 +88,10 @@ class Model(nn.Module):
         report = getattr(getattr(self, "field", None), "diagnostics", None)
         return dict(report()) if report is not None else {}
 
+    def sharpness(self) -> Optional[float]:
+        """NeuS's inv_s for the training guard's collapse test; None for models without one."""
+        return None
+
     # -- evaluation and export ------------------------------------------------------------------
     def render_rays(self, ray_bundle: RayBundle, keys: Sequence[str] = ("rgb", "accumulation", "depth")
                     ) -> Dict[str, torch.Tensor]:
