@@ -11,8 +11,8 @@ ran the adaptive phases and the mean inconsistency per view. Writes into OUT:
 
 - ``runs/<input>-<method>/``: the run folders (mesh.ply, masks.png, inconsistency.png, attention.png);
 - ``generated.json`` / ``generated.md``: one row per (input, method);
-- ``generated_meshes.png``: grey shaded views of every mesh, a row per (input, method), on the
-  SyncDreamer orbit (30 deg elevation);
+- ``generated_meshes.png``: a row per input: its first view, then three grey turntable frames of each
+  method's mesh (SyncDreamer orbit, 30 deg elevation);
 - ``<input>_inconsistency.png``: a copy of each ``va-neus`` run's inconsistency maps.
 
 ``--resume`` skips (input, method) pairs whose run folder already has its mesh; an interrupted run is
@@ -108,6 +108,35 @@ def rig_check(source: Path) -> dict:
     return {"silhouette_iou_mean": round(sum(ious) / len(ious), 3), "silhouette_iou_min": round(min(ious), 3)}
 
 
+def summary_figure(inputs, methods, out: Path, frames: int = 3, resolution: int = 128):
+    """One row per input: its first training view, then ``frames`` grey turntable frames of each
+    method's mesh (SyncDreamer orbit, 30 deg elevation); written to ``OUT/generated_meshes.png``."""
+    import cv2
+    import numpy as np
+
+    from va_plugin.data.dataparsers import resolve_dataparser
+    from va_plugin.data.images import write_image
+    from va_plugin.eval.evaluate import load_mesh
+    from va_plugin.export.render import mesh_views
+
+    rows = []
+    for name, source in inputs:
+        meshes = [out / "runs" / f"{name}-{m}" / "mesh.ply" for m in methods]
+        if not all(m.is_file() for m in meshes):
+            continue
+        image = resolve_dataparser(source).setup().get_outputs("train").images[0].numpy()
+        if image.shape[-1] == 4:
+            image = image[..., :3] * image[..., 3:] + (1.0 - image[..., 3:])
+        tiles = [cv2.resize(image, (resolution, resolution), interpolation=cv2.INTER_AREA)]
+        tiles += [mesh_views([load_mesh(m)], frames, resolution) for m in meshes]
+        rows.append(np.concatenate(tiles, axis=1))
+    if not rows:
+        return None
+    path = out / "generated_meshes.png"
+    write_image(path, np.concatenate(rows, axis=0))
+    return path
+
+
 def write_tables(rows, out: Path) -> None:
     (out / "generated.json").write_text(json.dumps(rows, indent=2))
     lines = ["| input | method | steps | wall s | train PSNR | silhouette IoU | adaptive phases | "
@@ -173,20 +202,9 @@ def main(argv=None) -> int:
 
     rows = [done[k] for k in sorted(done)]
     write_tables(rows, args.out)
-    meshes, labels = [], []
-    from va_plugin.data.images import write_image
-    from va_plugin.eval.evaluate import load_mesh
-    from va_plugin.export.render import mesh_views
-
-    for name, source in inputs:
-        for method in methods:
-            mesh = args.out / "runs" / f"{name}-{method}" / "mesh.ply"
-            if mesh.is_file():
-                meshes.append(load_mesh(mesh))
-                labels.append(f"{name} {method}")
-    if meshes:
-        write_image(args.out / "generated_meshes.png", mesh_views(meshes, 4, 128))
-        print(f"wrote {args.out / 'generated_meshes.png'} (rows: {'; '.join(labels)})")
+    figure = summary_figure(inputs, methods, args.out)
+    if figure is not None:
+        print(f"wrote {figure}")
     print(f"wrote {args.out / 'generated.md'}")
     return 0
 
