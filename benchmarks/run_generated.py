@@ -13,7 +13,7 @@ ran the adaptive phases and the mean inconsistency per view. Writes into OUT:
 - ``generated.json`` / ``generated.md``: one row per (input, method);
 - ``generated_meshes.png``: a row per input: its first view, then three grey turntable frames of each
   method's mesh (SyncDreamer orbit, 30 deg elevation);
-- ``<input>_inconsistency.png``: a copy of each ``va-neus`` run's inconsistency maps.
+- ``<input>-<method>_inconsistency.png``: a copy of each view-adaptive run's inconsistency maps.
 
 ``--resume`` skips (input, method) pairs whose run folder already has its mesh; an interrupted run is
 continued from its newest checkpoint.
@@ -84,6 +84,8 @@ def run_one(method: str, source: Path, run_dir: Path, args) -> float:
            "--set", f"num_threads={args.threads}"]
     if args.steps:
         cmd += ["--steps", str(args.steps)]
+    if args.force_adaptive and method.startswith("va-"):
+        cmd += ["--set", "pipeline.model.field.skip_consistent_scenes=false"]
     if args.resume and (run_dir / "checkpoints").is_dir():
         cmd.append("--resume")
     env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
@@ -159,6 +161,9 @@ def main(argv=None) -> int:
     parser.add_argument("--steps", type=int, default=None, help="step budget (default: each method's)")
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--force-adaptive", action="store_true",
+                        help="run the adaptive phases even where the consistent-scene test would skip them "
+                             "(runs and rows are named METHOD-forced)")
     parser.add_argument("--figure-only", action="store_true", help="only rebuild tables and figures")
     args = parser.parse_args(argv)
 
@@ -181,19 +186,20 @@ def main(argv=None) -> int:
     total = len(inputs) * len(methods)
     start = time.perf_counter()
     for k, ((name, source), method) in enumerate(((i, m) for i in inputs for m in methods), 1):
-        run_dir = args.out / "runs" / f"{name}-{method}"
-        key = (source.parent.name + "/" + source.name, method)
+        tag = f"{method}-forced" if args.force_adaptive and method.startswith("va-") else method
+        run_dir = args.out / "runs" / f"{name}-{tag}"
+        key = (source.parent.name + "/" + source.name, tag)
         if args.figure_only or (args.resume and key in done and (run_dir / "mesh.ply").is_file()):
             continue
         elapsed = time.perf_counter() - start
-        print(f"[{k}/{total} | {elapsed / 60:.0f} min elapsed] {key[0]}: {method}", flush=True)
+        print(f"[{k}/{total} | {elapsed / 60:.0f} min elapsed] {key[0]}: {tag}", flush=True)
         seconds = run_one(method, source, run_dir, args)
-        row = {"input": key[0], "method": method, "wall_seconds": round(seconds, 1),
+        row = {"input": key[0], "method": tag, "wall_seconds": round(seconds, 1),
                "threads": args.threads, **last_metrics(run_dir), **rig_check(source)}
         inc = inconsistency_summary(run_dir)
         if inc is not None:
             row["inconsistency"] = inc
-            shutil.copy(run_dir / "inconsistency.png", args.out / f"{name}_inconsistency.png")
+            shutil.copy(run_dir / "inconsistency.png", args.out / f"{name}-{tag}_inconsistency.png")
         done[key] = row
         with open(rows_path, "a") as f:
             f.write(json.dumps(row) + "\n")
