@@ -118,6 +118,26 @@ def test_sample_culling_matches_the_full_adaptive_path(tiny_scene, tmp_path):
     assert not torch.allclose(full[heavy], plain[heavy]) and d > 0
 
 
+@pytest.mark.parametrize("backbone", ["neus", "ngp"])
+def test_phase_one_trains_exactly_what_the_plain_backbone_trains(backbone, tiny_scene, tmp_path):
+    """The adaptive modules initialise from their own random stream: with or without fusion, phase 1 of
+    the wrapped method leaves the shared field bit-for-bit where the plain method's training leaves it."""
+    plain = tiny_config(backbone, tiny_scene, tmp_path / "plain", steps=3).setup()
+    plain.train()
+    expected = {k: v for k, v in plain.model.field.state_dict().items()}
+    for fusion in ("true", "false"):
+        wrapped = _trainer(f"va-{backbone}", tiny_scene, tmp_path / f"va-{fusion}", steps=3,
+                           **{"pipeline.model.field.pretrain_fraction": 1.0,
+                              "pipeline.model.field.branch_fraction": 0.0,
+                              "pipeline.model.field.fusion": fusion,
+                              "pipeline.model.field.diagnostics_scale": 0})
+        wrapped.train()
+        got = wrapped.model.field.base.state_dict()
+        assert got.keys() == expected.keys()
+        for key, value in expected.items():
+            assert torch.equal(got[key], value), (fusion, key)
+
+
 @pytest.mark.parametrize("method", METHODS)
 def test_phase_survives_a_checkpoint(method, tiny_scene, tmp_path):
     trainer = _trainer(method, tiny_scene, tmp_path / "run", steps=6, checkpoint_every=3)

@@ -33,6 +33,10 @@ PRETRAIN, BRANCHES, FUSION = 1, 2, 3
 PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branches", FUSION: "self-attention fusion"}
 
 
+ADAPTIVE_SEED_OFFSET = 7919
+"""Added to the run's seed for the stream that initialises the branches and the attention."""
+
+
 @dataclass
 class ViewAdaptiveFieldConfig(FieldConfig):
     """Per-view branches + self-attention fusion around a base field (the paper's Sec. 3)."""
@@ -113,10 +117,16 @@ class ViewAdaptiveField(Field):
         self.geometry_kind = self.base.geometry_kind
         self.feature_dim = self.base.feature_dim
         d = self.feature_dim
-        self.branches = ViewBranches(num_train_views, d, config.branch_width, config.branch_layers) \
-            if config.branches else None
-        self.attention = ViewAttention(d, config.attention_dim, config.attention_heads) \
-            if config.fusion else None
+        # The adaptive modules draw their initial weights from a stream of their own (derived from the
+        # run's seed), so the global random stream (the base field above, then every training batch) is
+        # the wrapped method's: phase 1 trains exactly what the plain backbone trains, whichever
+        # components are switched on, and paired comparisons see the components' effect, not a reshuffle.
+        with torch.random.fork_rng(devices=[]):
+            torch.manual_seed((torch.initial_seed() + ADAPTIVE_SEED_OFFSET) % 2 ** 63)
+            self.branches = ViewBranches(num_train_views, d, config.branch_width, config.branch_layers) \
+                if config.branches else None
+            self.attention = ViewAttention(d, config.attention_dim, config.attention_heads) \
+                if config.fusion else None
         # persistent so a loaded checkpoint renders in the phase it finished in
         self.register_buffer("phase", torch.tensor(PRETRAIN))
         self.register_buffer("skipped", torch.tensor(False))
