@@ -74,7 +74,7 @@ def inconsistency_summary(run_dir: Path):
     if not path.is_file():
         return None
     data = json.loads(path.read_text())
-    return [round(float(v["mean_abs_difference"]), 4) for v in data.get("views", [])]
+    return [float(f"{float(v['mean_abs_difference']):.3g}") for v in data.get("views", [])]
 
 
 def run_one(method: str, source: Path, run_dir: Path, args) -> float:
@@ -141,14 +141,15 @@ def summary_figure(inputs, methods, out: Path, frames: int = 3, resolution: int 
 
 def write_tables(rows, out: Path) -> None:
     (out / "generated.json").write_text(json.dumps(rows, indent=2))
-    lines = ["| input | method | steps | wall s | train PSNR | silhouette IoU | adaptive phases | "
-             "inconsistency per view |", "|---|---|---|---|---|---|---|---|"]
+    lines = ["| input | method | steps | wall s | train PSNR | silhouette IoU | per-view PSNR spread after "
+             "phase 1 (dB) | adaptive phases | inconsistency per view |", "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         iou = (f"{r['silhouette_iou_mean']:.3f} / {r['silhouette_iou_min']:.3f}"
                if "silhouette_iou_mean" in r else "")
-        inc = ", ".join(f"{v:.3f}" for v in r["inconsistency"]) if r.get("inconsistency") else ""
+        inc = ", ".join(f"{v:.2g}" for v in r["inconsistency"]) if r.get("inconsistency") else ""
         lines.append(f"| {r['input']} | {r['method']} | {r.get('steps', '')} | {r['wall_seconds']:.0f} | "
-                     f"{r.get('train_psnr', float('nan')):.2f} | {iou} | {r.get('adaptive_phases', '')} | {inc} |")
+                     f"{r.get('train_psnr', float('nan')):.2f} | {iou} | {r.get('residual_spread_db', '')} | "
+                     f"{r.get('adaptive_phases', '')} | {inc} |")
     (out / "generated.md").write_text("\n".join(lines) + "\n")
 
 
@@ -207,6 +208,16 @@ def main(argv=None) -> int:
               f"adaptive: {row.get('adaptive_phases', '-')}", flush=True)
 
     rows = [done[k] for k in sorted(done)]
+    for row in rows:  # the maps' summary is re-read, so rows written by older versions get its precision
+        name = Path(row["input"]).stem
+        run_dir = args.out / "runs" / f"{name}-{row['method']}"
+        inc = inconsistency_summary(run_dir)
+        if inc is not None:
+            row["inconsistency"] = inc
+        if (run_dir / "view_residuals.json").is_file():  # the consistent-scene test's measurement
+            views = json.loads((run_dir / "view_residuals.json").read_text())["views"]
+            key = "psnr_foreground" if all("psnr_foreground" in v for v in views) else "psnr"
+            row["residual_spread_db"] = round(max(v[key] for v in views) - min(v[key] for v in views), 2)
     write_tables(rows, args.out)
     figure = summary_figure(inputs, methods, args.out)
     if figure is not None:
