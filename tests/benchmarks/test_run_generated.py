@@ -1,0 +1,53 @@
+"""benchmarks/run_generated.py's bookkeeping: finding generator outputs, reading a run's log and maps,
+the table. (Training itself is the CLI's, tested elsewhere; a real run on ../shared/data takes minutes.)"""
+
+import json
+
+import pytest
+
+from bench_scripts import load_script
+
+
+@pytest.fixture(scope="module")
+def gen():
+    return load_script("run_generated")
+
+
+def test_finds_pngs_and_folders_sorted_and_refuses_a_missing_root(gen, tmp_path):
+    (tmp_path / "zero123pp").mkdir()
+    (tmp_path / "syncdreamer").mkdir()
+    for path in ("syncdreamer/b.png", "syncdreamer/a.png", "zero123pp/fox.png", "syncdreamer/notes.txt"):
+        (tmp_path / path).write_bytes(b"")
+    (tmp_path / "zero123pp" / "wonder_like").mkdir()
+    names = [name for name, _ in gen.find_inputs(tmp_path)]
+    assert names == ["a", "b", "fox", "wonder_like"]
+    with pytest.raises(SystemExit, match="no generator outputs"):
+        gen.find_inputs(tmp_path / "absent")
+
+
+def test_reads_the_last_training_record_and_the_adaptive_decision(gen, tmp_path):
+    rows = [{"loss": 1.0, "psnr": 12.0, "step": 10},
+            {"step": 167, "event": "inputs disagree (...)", "residual_spread_db": 1.5},
+            {"loss": 0.5, "psnr": 17.5, "step": 500}]
+    (tmp_path / "metrics.jsonl").write_text("\n".join(json.dumps(r) for r in rows) + "\nnot json\n")
+    got = gen.last_metrics(tmp_path)
+    assert got == {"train_psnr": 17.5, "steps": 500, "adaptive_phases": "ran", "residual_spread_db": 1.5}
+    (tmp_path / "metrics.jsonl").write_text(json.dumps({"step": 167, "event": "x", "skipped_adaptive": True}))
+    assert gen.last_metrics(tmp_path)["adaptive_phases"].startswith("skipped")
+    assert gen.last_metrics(tmp_path / "nothing") == {}
+
+
+def test_inconsistency_summary_keeps_small_values_and_the_table_shows_them(gen, tmp_path):
+    assert gen.inconsistency_summary(tmp_path) is None
+    maps = {"views": [{"view": 0, "mean_abs_difference": 2.8680e-05}, {"view": 1, "mean_abs_difference": 0.0123456}]}
+    (tmp_path / "inconsistency.json").write_text(json.dumps(maps))
+    summary = gen.inconsistency_summary(tmp_path)
+    assert summary == [2.87e-05, 0.0123]
+    rows = [{"input": "syncdreamer/a.png", "method": "va-neus", "wall_seconds": 12.3, "steps": 500,
+             "train_psnr": 17.0, "silhouette_iou_mean": 0.9, "silhouette_iou_min": 0.85,
+             "adaptive_phases": "ran", "residual_spread_db": 1.2, "inconsistency": summary}]
+    gen.write_tables(rows, tmp_path)
+    table = (tmp_path / "generated.md").read_text().splitlines()
+    assert len(table) == 3 and table[0].count("|") == table[2].count("|")
+    assert "2.9e-05" in table[2] and "0.900 / 0.850" in table[2] and "| 1.2 |" in table[2]
+    assert json.loads((tmp_path / "generated.json").read_text()) == rows
