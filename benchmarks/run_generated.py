@@ -13,7 +13,9 @@ ran the adaptive phases and the mean inconsistency per view. Writes into OUT:
 - ``generated.json`` / ``generated.md``: one row per (input, method);
 - ``generated_meshes.png``: a row per input: its first view, then three grey turntable frames of each
   method's mesh (SyncDreamer orbit, 30 deg elevation);
-- ``<input>-<method>_inconsistency.png``: a copy of each view-adaptive run's inconsistency maps.
+- ``<input>-<method>_inconsistency.png``: a copy of each view-adaptive run's inconsistency maps;
+- ``generated_inconsistency.png``: a row per view-adaptive run that ran its adaptive phases: each
+  training view's input beside its inconsistency map.
 
 ``--resume`` skips (input, method) pairs whose run folder already has its mesh; an interrupted run is
 continued from its newest checkpoint.
@@ -139,6 +141,39 @@ def summary_figure(inputs, methods, out: Path, frames: int = 3, resolution: int 
     return path
 
 
+def inconsistency_figure(runs, out: Path, tile: int = 96):
+    """One row per view-adaptive run (``(label, run_dir)``): for each training view its input and its
+    inconsistency map side by side, cut from the run's ``inconsistency.png`` (input | own | canonical |
+    map columns, a row per view); shorter rows are padded with white. Written to
+    ``OUT/generated_inconsistency.png``."""
+    import cv2
+    import numpy as np
+
+    from va_plugin.data.images import read_image, write_image
+
+    rows = []
+    for _, run_dir in runs:
+        path = run_dir / "inconsistency.png"
+        if not path.is_file():
+            continue
+        picture = read_image(path)[..., :3]
+        side = picture.shape[1] // 4
+        tiles = []
+        for v in range(picture.shape[0] // side):
+            block = picture[v * side:(v + 1) * side]
+            for column in (0, 3):
+                tiles.append(cv2.resize(block[:, column * side:(column + 1) * side], (tile, tile),
+                                        interpolation=cv2.INTER_AREA))
+        rows.append(np.concatenate(tiles, axis=1))
+    if not rows:
+        return None
+    width = max(r.shape[1] for r in rows)
+    rows = [np.pad(r, ((0, 0), (0, width - r.shape[1]), (0, 0)), constant_values=1.0) for r in rows]
+    path = out / "generated_inconsistency.png"
+    write_image(path, np.concatenate(rows, axis=0))
+    return path
+
+
 def write_tables(rows, out: Path) -> None:
     (out / "generated.json").write_text(json.dumps(rows, indent=2))
     lines = ["| input | method | steps | wall s | train PSNR | silhouette IoU | per-view PSNR spread after "
@@ -222,6 +257,11 @@ def main(argv=None) -> int:
     figure = summary_figure(inputs, methods, args.out)
     if figure is not None:
         print(f"wrote {figure}")
+    adaptive_runs = [(f"{name} {r['method']}", args.out / "runs" / f"{name}-{r['method']}")
+                     for r in rows for name in [Path(r["input"]).stem] if r["method"].startswith("va-")]
+    figure = inconsistency_figure(adaptive_runs, args.out)
+    if figure is not None:
+        print(f"wrote {figure} (rows: {', '.join(label for label, d in adaptive_runs if (d / 'inconsistency.png').is_file())})")
     print(f"wrote {args.out / 'generated.md'}")
     return 0
 
