@@ -340,3 +340,29 @@ def test_gso_meshes_project_onto_the_parsed_syncdreamer_rig(tmp_path):
         assert min(scores) >= 0.9, (name, min(scores))
         keyed = [iou(train.masks[k, ..., 0].numpy() > 0.5, renders[k, ..., 3] > 0.5) for k in range(16)]
         assert min(keyed) > 0.8, (name, min(keyed))
+
+
+def test_wonder3d_normal_maps_supervise_neus(wonder3d_folder, tmp_path):
+    """Batches from a folder with normal maps carry world normals; neus adds a finite normal loss
+    (normal_weight > 0), and none with normal_weight = 0 or for inputs without normals."""
+    import json
+
+    from conftest import tiny_config
+
+    folder, _, _ = wonder3d_folder
+    losses = {}
+    for weight in (0.1, 0.0):
+        config = tiny_config("neus", folder, tmp_path / f"w{weight}", steps=2,
+                             **{"pipeline.model.normal_weight": weight})
+        config.pipeline.datamanager.dataparser = resolve_dataparser(folder)
+        trainer = config.setup()
+        dm = trainer.pipeline.datamanager
+        assert dm.normals is not None and dm.normals.shape == (*dm.images.shape[:3], 3)
+        _, batch = dm.next_train(0)
+        lengths = batch["normal"].norm(dim=-1)
+        assert bool(((lengths - 1).abs() < 1e-3).logical_or(lengths == 0).all()) and bool((lengths > 0).any())
+        trainer.train()
+        rows = [json.loads(line) for line in (tmp_path / f"w{weight}" / "metrics.jsonl").read_text().splitlines()]
+        losses[weight] = [r.get("loss_normal") for r in rows if "loss" in r]
+    assert all(v is not None and 0.0 <= v <= 0.2 for v in losses[0.1])  # weight x (1 - cos), 1 - cos in [0, 2]
+    assert losses[0.0] == [None, None]

@@ -50,6 +50,10 @@ class DataManager:
         self.cameras = self.train.cameras.to(device)
         self.images = self.train.images.to(device)
         self.masks = None if self.train.masks is None else self.train.masks.to(device)
+        normals = self.train.metadata.get("normals")
+        self.normals = None if normals is None else normals.to(device=device, dtype=self.images.dtype)
+        """World-space normal maps ``[n, H, W, 3]`` of the training views (zero off the object), when the
+        input has them (Wonder3D); the batches then carry ``normal`` targets."""
         self.generator = torch.Generator(device="cpu").manual_seed(config.seed)
         self._height, self._width = self.images.shape[1:3]
         self._foreground = self._foreground_pixels()
@@ -87,7 +91,8 @@ class DataManager:
         return torch.cat([self._foreground[pick], uniform])
 
     def next_train(self, step: int) -> Tuple[RayBundle, Dict[str, torch.Tensor]]:
-        """A random batch of training rays and their targets (``rgb [n, 3]``, ``mask [n, 1]``)."""
+        """A random batch of training rays and their targets (``rgb [n, 3]``, ``mask [n, 1]``, and
+        ``normal [n, 3]`` when the input has normal maps)."""
         flat = self._sample_flat_indices().to(self.device)
         pixels = self._height * self._width
         views, within = flat // pixels, flat % pixels
@@ -96,6 +101,8 @@ class DataManager:
         batch = {"rgb": self.images[views, rows, cols]}
         if self.masks is not None:
             batch["mask"] = self.masks[views, rows, cols]
+        if self.normals is not None:
+            batch["normal"] = self.normals[views, rows, cols]
         return RayBundle(origins, directions, views), batch
 
     def image_rays(self, outputs: DataparserOutputs, index: int, camera_index: Optional[int] = None

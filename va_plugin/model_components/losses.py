@@ -37,6 +37,16 @@ def mask_loss(accumulation: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
     return -(mask * torch.log(acc) + (1.0 - mask) * torch.log(1.0 - acc)).mean()
 
 
+def normal_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Mean ``1 - cos`` between rendered normals ``[n, 3]`` (a weighted sum, any length) and target unit
+    normals ``[n, 3]``, over the rays whose target is a normal (length above one half; background pixels
+    of a normal map are zero). 0 to 2; 0 when no ray has a target."""
+    valid = (target.norm(dim=-1) > 0.5).to(rendered.dtype)
+    direction = torch.nn.functional.normalize(rendered, dim=-1, eps=1e-6)
+    error = 1.0 - (direction * target).sum(-1).clamp(-1.0, 1.0)
+    return (error * valid).sum() / valid.sum().clamp_min(1.0)
+
+
 def psnr_from_mse(mse: torch.Tensor) -> torch.Tensor:
     """PSNR in dB for images in [0, 1], with the MSE clamped at 1e-10 (so at most 100 dB)."""
     return -10.0 * torch.log10(mse.clamp_min(1e-10))

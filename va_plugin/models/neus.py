@@ -58,6 +58,10 @@ class NeuSModelConfig(ModelConfig):
     """Weight of the eikonal loss."""
     mask_weight: float = 0.1
     """Weight of the mask loss against the foreground mask (0 turns it off)."""
+    normal_weight: float = 0.1
+    """Weight of the normal loss (1 - cos between rendered and given normals) on inputs that come with
+    normal maps (Wonder3D folders with ``normals_000_<view>.png``); other inputs have none, and 0 turns
+    it off."""
     cos_anneal_fraction: float = 0.1
     """Share of the step budget over which the cosine term is annealed (0: no annealing)."""
 
@@ -228,6 +232,8 @@ class NeuSModel(Model):
             loss["eikonal"] = cfg.eikonal_weight * losses.eikonal_loss(outputs["gradients"], outputs["inside"])
         if cfg.mask_weight > 0 and "mask" in batch:
             loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
+        if cfg.normal_weight > 0 and "normal" in batch:
+            loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
         extra = getattr(self.field, "extra_losses", None)
         if extra is not None:
             loss.update(extra(outputs))
