@@ -54,3 +54,39 @@ def test_diagnostics_of_a_plain_run_is_a_clear_error(tiny_scene, tmp_path, capsy
     tiny_config("neus", tiny_scene, tmp_path / "run", steps=1).setup().train()
     assert export_main(["diagnostics", "--load-dir", str(tmp_path / "run")]) == 2
     assert "not view-adaptive" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize("method,phase_fractions,canonical", [
+    ("va-neus", (0.0, 0.0), "mean"),    # fusion
+    ("va-ngp", (0.0, 0.0), "mean"),
+    ("va-neus", (0.0, 1.0), "mean"),    # branches alone
+    ("va-neus", (0.0, 0.0), "shared"),
+])
+def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, canonical, tiny_scene, tmp_path):
+    """The maps render each view once (own and canonical colour from the same samples); that must be
+    exactly what two separate renders, own path and novel-view path, give."""
+    import torch
+
+    from va_plugin.adaptive.diagnostics import inconsistency_maps
+    from va_plugin.export.render import render_view
+
+    trainer = tiny_config(method, tiny_scene, tmp_path / "run", steps=2, **{
+        "pipeline.model.field.skip_consistent_scenes": "false", "pipeline.model.field.diagnostics_scale": 0,
+        "pipeline.model.field.pretrain_fraction": phase_fractions[0],
+        "pipeline.model.field.branch_fraction": phase_fractions[1],
+        "pipeline.model.field.canonical": canonical}).setup()
+    trainer.train()
+    field = trainer.model.field
+    with torch.no_grad():  # make the branches and the attention matter
+        for p in list(field.branches.parameters()) + ([] if field.attention is None else list(field.attention.parameters())):
+            p.add_(0.05 * torch.randn_like(p))
+    maps = inconsistency_maps(trainer.pipeline, scale=1.0)
+    assert not field.also_canonical
+    cameras = trainer.pipeline.datamanager.cameras
+    differs = 0.0
+    for view, entry in enumerate(maps):
+        own = render_view(trainer.model, cameras, view, as_view=view)
+        canonical = render_view(trainer.model, cameras, view)
+        assert np.allclose(entry["own"], own, atol=1e-6) and np.allclose(entry["canonical"], canonical, atol=1e-6)
+        differs = max(differs, float(np.abs(own - canonical).max()))
+    assert differs > 1e-4  # the test would pass vacuously if own and canonical were the same image

@@ -75,20 +75,22 @@ def inconsistency_maps(pipeline, scale: float = 0.5, progress: bool = False) -> 
     ``|branch - canonical|`` (mean over RGB), all at ``scale`` of the input resolution."""
     dm = pipeline.datamanager
     model = pipeline.model
+    field = model.field
     cameras = dm.cameras.scaled(scale) if scale != 1.0 else dm.cameras
     was_training = model.training
     model.eval()
     out = []
     try:
+        field.also_canonical = True  # one pass per view renders both images
         for view in tqdm(range(dm.num_train_views), desc="inconsistency maps", disable=not progress):
-            own = render_view(model, cameras, view, as_view=view)
-            canonical = render_view(model, cameras, view)
+            own, canonical = render_view(model, cameras, view, as_view=view, keys=("rgb", "rgb_canonical"))
             target = cv2.resize(dm.images[view].cpu().numpy(), (cameras.width, cameras.height),
                                 interpolation=cv2.INTER_AREA)
             out.append({"input": target, "own": own, "canonical": canonical,
                         "map": np.abs(own - canonical).mean(-1)})
     finally:
         model.train(was_training)
+        field.also_canonical = False
     return out
 
 

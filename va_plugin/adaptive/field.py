@@ -128,6 +128,8 @@ class ViewAdaptiveField(Field):
             self.attention = ViewAttention(d, config.attention_dim, config.attention_heads) \
                 if config.fusion else None
         # persistent so a loaded checkpoint renders in the phase it finished in
+        self.also_canonical = False
+        """Set by the diagnostics: colour() also returns ``rgb_canonical`` (see there)."""
         self.register_buffer("phase", torch.tensor(PRETRAIN))
         self.register_buffer("skipped", torch.tensor(False))
         self._phase = PRETRAIN  # host copy of the buffer: no device sync per colour query
@@ -182,7 +184,17 @@ class ViewAdaptiveField(Field):
         Given the samples' rendering ``weights``, only samples weighing more than
         ``min_sample_weight`` go through the branches and the attention; the others (empty space,
         occluded points: most samples of a ray) keep the shared colour and contribute nothing to the
-        regularizers."""
+        regularizers.
+
+        With ``also_canonical`` set (the diagnostics do), ``rgb_canonical`` comes along: the canonical
+        colour of the same samples, so one render pass gives both a view's own and its canonical image."""
+        out = self._color(positions, directions, normals, geo_features, camera_indices, weights)
+        if self.also_canonical and "rgb_canonical" not in out:
+            out["rgb_canonical"] = out["rgb"]
+        return out
+
+    def _color(self, positions, directions, normals, geo_features, camera_indices,
+               weights) -> Dict[str, torch.Tensor]:
         shared = self.base.color_features(positions, directions, normals, geo_features)
         cfg = self.config
         if not self.branches_active():
@@ -195,8 +207,13 @@ class ViewAdaptiveField(Field):
             views = camera_indices.reshape(-1).to(flat.device)
         if cfg.canonical == "shared" and bool((views < 0).all()):
             return {"rgb": self.base.decode_color(shared)}
+        shared_rgb = None
+        if self.also_canonical and cfg.canonical == "shared":
+            shared_rgb = self.base.decode_color(shared)
         if weights is None or cfg.min_sample_weight <= 0:
             out = self._adaptive(flat, views, None)
+            if shared_rgb is not None:
+                out["rgb_canonical"] = shared_rgb.reshape(-1, shared_rgb.shape[-1])
             return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
         active = weights.reshape(-1) > cfg.min_sample_weight
         if cfg.canonical == "shared":
@@ -205,9 +222,14 @@ class ViewAdaptiveField(Field):
         if self.training:
             self.adaptive_share = index.numel() / max(flat.shape[0], 1)
         sub = self._adaptive(flat[index], views[index], weights.reshape(-1)[index])
-        out = {"rgb": self.base.decode_color(flat).index_copy(0, index, sub.pop("rgb"))}
+        base_rgb = self.base.decode_color(flat)
+        out = {"rgb": base_rgb.index_copy(0, index, sub.pop("rgb"))}
+        if "rgb_canonical" in sub:
+            out["rgb_canonical"] = base_rgb.index_copy(0, index, sub.pop("rgb_canonical"))
         for key, value in sub.items():  # per-sample regularizers: 0 where not evaluated
             out[key] = value.new_zeros(flat.shape[0]).index_copy(0, index, value)
+        if shared_rgb is not None:
+            out["rgb_canonical"] = shared_rgb.reshape(-1, shared_rgb.shape[-1])
         return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
 
     def _adaptive(self, flat: torch.Tensor, views: torch.Tensor,
@@ -217,7 +239,7 @@ class ViewAdaptiveField(Field):
         novel = views < 0
         d = flat.shape[-1]
         fusion = self.fusion_active()
-        if not fusion and not bool(novel.any()):
+        if not fusion and not bool(novel.any()) and not self.also_canonical:
             # branches alone: each sample needs only its own view's branch
             return {"rgb": self.base.decode_color(self.branches.forward_own(flat, views))}
         tokens = self.branches.forward_all(flat)  # [S, n, D]
@@ -228,6 +250,8 @@ class ViewAdaptiveField(Field):
         canonical = flat if cfg.canonical == "shared" else tokens.mean(1)
         feature = torch.where(novel[:, None], canonical, own)
         out = {"rgb": self.base.decode_color(feature)}
+        if self.also_canonical and cfg.canonical != "shared":
+            out["rgb_canonical"] = self.base.decode_color(canonical)
         if fusion and self.training:
             if cfg.entropy_weight > 0:
                 out["va_entropy"] = attention_entropy(alpha)

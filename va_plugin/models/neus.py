@@ -222,7 +222,10 @@ class NeuSModel(Model):
             "gradients": gradients,
             "inside": (positions.detach().norm(dim=-1) < self.scene.scene_radius),
         }
-        outputs.update({k: v for k, v in color.items() if k != "rgb"})
+        for key, value in color.items():  # other colours (the canonical one, for diagnostics): per ray
+            if key != "rgb":
+                outputs[key] = (renderers.render_rgb(weights, unpack(value), self.background)
+                                if key.startswith("rgb_") else value)
         return outputs
 
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
@@ -279,10 +282,10 @@ def _scatter_rays(inner: Dict[str, torch.Tensor], index: torch.Tensor, n_rays: i
     render the background with zero opacity. Per-sample outputs keep only the rendered rays. With
     ``blank``, the rendered rays were skipped too (kept only for the graph): they show nothing either."""
     out = dict(inner)
-    for key in PER_RAY_KEYS:
+    for key in PER_RAY_KEYS + tuple(k for k in inner if k.startswith("rgb_")):
         value = inner[key]
         full = value.new_zeros((n_rays,) + value.shape[1:])
-        if key == "rgb":
+        if key.startswith("rgb"):
             full = full + background
         if blank:  # zero times the render keeps the graph (and finite, zero gradients)
             value = value * 0.0 + full[index]
