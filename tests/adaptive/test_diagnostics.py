@@ -90,3 +90,18 @@ def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, canon
         assert np.allclose(entry["own"], own, atol=1e-6) and np.allclose(entry["canonical"], canonical, atol=1e-6)
         differs = max(differs, float(np.abs(own - canonical).max()))
     assert differs > 1e-4  # the test would pass vacuously if own and canonical were the same image
+
+
+def test_failing_diagnostics_warn_and_keep_the_trained_run(tiny_scene, tmp_path, monkeypatch):
+    import va_plugin.adaptive.diagnostics as diagnostics
+    from va_plugin.engine.trainer import list_checkpoints
+
+    def broken(*args, **kwargs):
+        raise KeyError("rgb_canonical")
+
+    monkeypatch.setattr(diagnostics, "write_diagnostics", broken)
+    trainer = tiny_config("va-neus", tiny_scene, tmp_path / "run", steps=3, **{
+        "pipeline.model.field.skip_consistent_scenes": "false"}).setup()
+    with pytest.warns(UserWarning, match="diagnostics pictures failed .*va-export diagnostics"):
+        trainer.train()
+    assert [c.name for c in list_checkpoints(tmp_path / "run")] == ["step-0000003.ckpt"]

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 from typing import Dict, List
 
@@ -108,8 +109,13 @@ def diagnostics_callback(field: ViewAdaptiveField) -> TrainingCallback:
             return
         from va_plugin.adaptive.diagnostics import write_diagnostics
 
-        written = write_diagnostics(trainer.pipeline, trainer.run_dir, field.config.diagnostics_scale,
-                                    progress=trainer.config.progress)
+        try:
+            written = write_diagnostics(trainer.pipeline, trainer.run_dir, field.config.diagnostics_scale,
+                                        progress=trainer.config.progress)
+        except Exception as exc:  # pictures must never cost the trained run (its checkpoint comes after)
+            warnings.warn(f"the diagnostics pictures failed ({type(exc).__name__}: {exc}); the trained run is "
+                          f"kept: retry with va-export diagnostics --load-dir {trainer.run_dir}")
+            return
         if written:
             _announce(trainer, step, "diagnostics written: " + ", ".join(Path(p).name for p in written))
 
