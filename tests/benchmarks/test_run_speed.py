@@ -116,3 +116,17 @@ def test_stage_markers_are_exclusive_and_do_nothing_unless_recording():
     assert recorder.exclusive["outer"] == pytest.approx(
         recorder.inclusive["outer"] - recorder.inclusive["inner"] - recorder.inclusive["layer"])
     assert 0.01 <= recorder.exclusive["outer"] < recorder.inclusive["outer"]
+
+
+def test_time_to_reach_waits_until_the_cd_stays_close():
+    speed = load_script("run_speed")
+    curve = [{"train_seconds": 10.0, "step": 1, "cd": 0.030},   # touches 110% of 0.0276 (0.03036) by chance
+             {"train_seconds": 20.0, "step": 2, "cd": 0.037},
+             {"train_seconds": 30.0, "step": 3, "cd": 0.030},   # from here on it stays
+             {"train_seconds": 40.0, "step": 4, "cd": 0.0276}]
+    reach = speed.time_to_reach(curve)
+    assert (reach["step"], reach["train_seconds"]) == (3, 30.0)
+    assert (reach["first_touch_step"], reach["first_touch_seconds"]) == (1, 10.0)
+    assert reach["target_cd"] == pytest.approx(1.1 * 0.0276)
+    assert speed.time_to_reach([{"train_seconds": 5.0, "step": 9, "cd": 0.02}])["step"] == 9
+    assert speed.time_to_reach([{"train_seconds": 5.0, "step": 9, "cd": None}])["step"] is None
