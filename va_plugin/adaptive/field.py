@@ -207,13 +207,10 @@ class ViewAdaptiveField(Field):
             views = camera_indices.reshape(-1).to(flat.device)
         if cfg.canonical == "shared" and bool((views < 0).all()):
             return {"rgb": self.base.decode_color(shared)}
-        shared_rgb = None
-        if self.also_canonical and cfg.canonical == "shared":
-            shared_rgb = self.base.decode_color(shared)
         if weights is None or cfg.min_sample_weight <= 0:
             out = self._adaptive(flat, views, None)
-            if shared_rgb is not None:
-                out["rgb_canonical"] = shared_rgb.reshape(-1, shared_rgb.shape[-1])
+            if self.also_canonical and cfg.canonical == "shared":
+                out["rgb_canonical"] = self.base.decode_color(flat)
             return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
         active = weights.reshape(-1) > cfg.min_sample_weight
         if cfg.canonical == "shared":
@@ -226,10 +223,10 @@ class ViewAdaptiveField(Field):
         out = {"rgb": base_rgb.index_copy(0, index, sub.pop("rgb"))}
         if "rgb_canonical" in sub:
             out["rgb_canonical"] = base_rgb.index_copy(0, index, sub.pop("rgb_canonical"))
+        elif self.also_canonical and cfg.canonical == "shared":
+            out["rgb_canonical"] = base_rgb  # the shared colour is the canonical one
         for key, value in sub.items():  # per-sample regularizers: 0 where not evaluated
             out[key] = value.new_zeros(flat.shape[0]).index_copy(0, index, value)
-        if shared_rgb is not None:
-            out["rgb_canonical"] = shared_rgb.reshape(-1, shared_rgb.shape[-1])
         return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
 
     def _adaptive(self, flat: torch.Tensor, views: torch.Tensor,

@@ -50,10 +50,10 @@ class DataManager:
         self.cameras = self.train.cameras.to(device)
         self.images = self.train.images.to(device)
         self.masks = None if self.train.masks is None else self.train.masks.to(device)
+        # world-space normal maps [n, H, W, 3] of the training views (zero off the object) when the input
+        # has them (Wonder3D): the batches then carry "normal" targets
         normals = self.train.metadata.get("normals")
         self.normals = None if normals is None else normals.to(device=device, dtype=self.images.dtype)
-        """World-space normal maps ``[n, H, W, 3]`` of the training views (zero off the object), when the
-        input has them (Wonder3D); the batches then carry ``normal`` targets."""
         self.generator = torch.Generator(device="cpu").manual_seed(config.seed)
         self._height, self._width = self.images.shape[1:3]
         self._foreground = self._foreground_pixels()
