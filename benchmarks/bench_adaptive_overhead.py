@@ -10,6 +10,7 @@ turn) from the same trained backbone state, and reports medians. The predicted r
 with the phase fractions f of the adaptive method's config.
 
     python benchmarks/bench_adaptive_overhead.py --backbone neus --checkpoint RUN --scene SCENE [--scene SCENE16]
+        [--fused-per-ray 2 4]
 """
 
 from __future__ import annotations
@@ -58,24 +59,30 @@ def one_step(trainer) -> float:
     return time.perf_counter() - start
 
 
-def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, steps: int) -> dict:
+def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, steps: int,
+            fused_per_ray=()) -> dict:
+    """Median step times of the backbone, phase 2 and phase 3 (with the config's fused_samples_per_ray,
+    and as ``phase3-kK`` with each K of ``fused_per_ray``), interleaved from the same state."""
     adaptive = f"va-{backbone}"
     trainers = {backbone: make_trainer(backbone, scene, state, out / backbone)}
-    for name, phase in (("phase2", BRANCHES), ("phase3", FUSION)):
-        trainer = make_trainer(adaptive, scene, state, out / name)
+    variants = [("phase2", BRANCHES, ()), ("phase3", FUSION, ())]
+    variants += [(f"phase3-k{k}", FUSION, (f"pipeline.model.field.fused_samples_per_ray={k}",)) for k in fused_per_ray]
+    for name, phase, overrides in variants:
+        trainer = make_trainer(adaptive, scene, state, out / name, overrides)
         trainer.model.field.set_phase(phase)
         trainer.lr_multipliers["fields"] = trainer.model.field.config.shared_lr_scale
         trainers[name] = trainer
     times = {name: [] for name in trainers}
-    shares = []
+    shares = {name: [] for name in trainers if name.startswith("phase3")}
     for r in range(rounds + 1):
         for name, trainer in trainers.items():
             for _ in range(steps):
                 elapsed = one_step(trainer)
                 if r > 0:  # the first round warms up
                     times[name].append(elapsed)
-                if name == "phase3" and r > 0:
-                    shares.append(trainer.model.field.adaptive_share)
+                    if name in shares:
+                        field = trainer.model.field
+                        shares[name].append((field.adaptive_share, field.fused_share))
     start = time.perf_counter()
     view_residuals(trainers["phase2"].pipeline)
     check = time.perf_counter() - start
@@ -87,10 +94,13 @@ def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, ste
     return {
         "scene": str(scene), "views": trainers[backbone].pipeline.datamanager.num_train_views,
         "median_step_s": {k: round(v, 4) for k, v in medians.items()},
-        "ratio_phase2": round(medians["phase2"] / base, 3), "ratio_phase3": round(medians["phase3"] / base, 3),
-        "adaptive_share_median": round(statistics.median(shares), 4) if shares else None,
+        "ratio_phase2": round(medians["phase2"] / base, 3),
+        **{f"ratio_{name}": round(medians[name] / base, 3) for name in shares},
+        "adaptive_share_median": {name: round(statistics.median(a for a, _ in v), 4) for name, v in shares.items()},
+        "fused_share_median": {name: round(statistics.median(f for _, f in v), 4) for name, v in shares.items()},
         "skip_check_s": round(check, 2),
-        "predicted_run_ratio": round((f1 * base + f2 * medians["phase2"] + f3 * medians["phase3"]) / base, 3),
+        **{("predicted_run_ratio" if name == "phase3" else f"predicted_run_ratio_{name}"):
+           round((f1 * base + f2 * medians["phase2"] + f3 * medians[name]) / base, 3) for name in shares},
         "samples": {k: len(v) for k, v in times.items()},
     }
 
@@ -103,12 +113,15 @@ def main() -> None:
     parser.add_argument("--rounds", type=int, default=6)
     parser.add_argument("--steps", type=int, default=4, help="steps of each variant per round")
     parser.add_argument("--threads", type=int, default=2)
+    parser.add_argument("--fused-per-ray", type=int, nargs="*", default=[],
+                        help="also time phase 3 with pipeline.model.field.fused_samples_per_ray=K for each K")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/adaptive_overhead.json"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     state = load_checkpoint(args.checkpoint)
     scratch = Path("/tmp/va-bench-overhead")
-    results = [measure(scene, args.backbone, state, scratch, args.rounds, args.steps) for scene in args.scene]
+    results = [measure(scene, args.backbone, state, scratch, args.rounds, args.steps, args.fused_per_ray)
+               for scene in args.scene]
     record = {"backbone": args.backbone, "checkpoint": str(args.checkpoint), "threads": args.threads,
               "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
               "date": time.strftime("%Y-%m-%d"), "results": results}

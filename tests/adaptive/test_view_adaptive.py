@@ -197,3 +197,94 @@ def test_ablation_switches_train(switches, tiny_scene, tmp_path):
     assert (field.branches is None) == (switches.get("branches") == "false")
     assert ("loss_entropy" in record) == (field.attention is not None and field.config.entropy_weight > 0)
     assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+
+
+def _heaviest_reference(weights, rays, k):
+    """Plain loop: per ray, the k largest weights (ties to the earlier sample)."""
+    chosen = [False] * len(weights)
+    for ray in set(rays.tolist()):
+        members = [i for i in range(len(weights)) if int(rays[i]) == ray]
+        members.sort(key=lambda i: (-float(weights[i]), i))
+        for i in members[:k]:
+            chosen[i] = True
+    return torch.tensor(chosen)
+
+
+@pytest.mark.parametrize("k", [1, 2, 5])
+def test_heaviest_per_ray_matches_a_plain_loop(k):
+    from va_plugin.adaptive.field import heaviest_per_ray
+
+    gen = torch.Generator().manual_seed(k)
+    for _ in range(5):
+        rays = torch.randint(0, 7, (60,), generator=gen)  # any order, rays of any length (some empty)
+        weights = torch.rand(60, generator=gen).round(decimals=1)  # ties
+        assert torch.equal(heaviest_per_ray(weights, rays, k), _heaviest_reference(weights, rays, k))
+    # hand-computed: ray 3 has weights .1 .7 .2, ray 0 has .5 .5
+    weights = torch.tensor([0.1, 0.5, 0.7, 0.5, 0.2])
+    rays = torch.tensor([3, 0, 3, 0, 3])
+    assert heaviest_per_ray(weights, rays, 1).tolist() == [False, True, True, False, False]
+    assert heaviest_per_ray(weights, rays, 2).tolist() == [False, True, True, True, True]
+    assert heaviest_per_ray(weights[:0], rays[:0], 2).numel() == 0
+
+
+def test_fused_samples_per_ray_fuses_each_rays_heaviest_and_gives_the_rest_their_own_branch(tiny_scene, tmp_path):
+    trainer = _trainer("va-neus", tiny_scene, tmp_path / "run", steps=2,
+                       **{"pipeline.model.field.pretrain_fraction": 0.0, "pipeline.model.field.branch_fraction": 0.0})
+    _run_step(trainer)
+    field = trainer.model.field
+    assert field.current_phase == FUSION
+    with torch.no_grad():
+        for w in list(field.branches.weights) + [field.attention.out.weight]:
+            w.add_(torch.randn_like(w) * 0.3)
+    positions = torch.rand(3, 4, 3) - 0.5
+    normals = torch.nn.functional.normalize(torch.randn(3, 4, 3), dim=-1)
+    _, geo = field.geometry(positions)
+    views = torch.tensor([[0] * 4, [2] * 4, [3] * 4])
+    rays = torch.arange(3)[:, None].expand(3, 4)
+    weights = torch.tensor([[0.1, 0.6, 0.2, 1e-5], [0.3, 0.3, 0.0, 0.2], [0.05, 0.01, 0.02, 0.9]])
+    args = (positions, -normals, normals, geo, views)
+    field.train()
+    field.config.fused_samples_per_ray = 0
+    full = field.color(*args, weights=weights, ray_indices=rays)
+    field.config.fused_samples_per_ray = 1
+    part = field.color(*args, weights=weights, ray_indices=rays)
+    fused = torch.tensor([[0, 1, 0, 0], [1, 0, 0, 0], [0, 0, 0, 1]], dtype=torch.bool)  # top-1 (tie: earlier)
+    visible = weights > field.config.min_sample_weight
+    shared = field.color_features(positions, -normals, normals, geo)
+    own = field.decode_color(field.branches.forward_own(shared.reshape(-1, shared.shape[-1]),
+                                                        views.reshape(-1))).reshape(3, 4, 3)
+    torch.testing.assert_close(part["rgb"][fused], full["rgb"][fused])
+    torch.testing.assert_close(part["rgb"][visible & ~fused], own[visible & ~fused])
+    torch.testing.assert_close(part["rgb"][~visible], field.decode_color(shared)[~visible])
+    assert not torch.allclose(part["rgb"][visible & ~fused], full["rgb"][visible & ~fused])
+    assert torch.equal(part["va_evaluated"].bool(), fused)
+    assert field.fused_share == pytest.approx(3 / 12) and field.adaptive_share == pytest.approx(10 / 12)
+    # the regularizers average over the fused samples only, by their rendering weights
+    losses = field.extra_losses({**part, "weights": weights})
+    w = weights[fused]
+    expected = field.config.entropy_weight * (part["va_entropy"][fused] * w).sum() / w.sum()
+    torch.testing.assert_close(losses["entropy"], expected)
+    # outside training (evaluation, diagnostics) every visible sample takes the full path
+    field.eval()
+    torch.testing.assert_close(field.color(*args, weights=weights, ray_indices=rays)["rgb"],
+                               field.color(*args, weights=weights)["rgb"])
+
+
+def test_fused_samples_per_ray_must_not_be_negative():
+    with pytest.raises(ConfigError, match="fused_samples_per_ray"):
+        ViewAdaptiveFieldConfig(fused_samples_per_ray=-1).validate()
+
+
+def test_the_consistency_check_renders_a_fixed_pixel_budget_over_all_views(tiny_scene, tmp_path):
+    from va_plugin.adaptive.phases import view_residuals
+
+    trainer = _trainer("va-ngp", tiny_scene, tmp_path / "run", steps=1)
+    model = trainer.pipeline.model
+    sizes = []
+    render = model.render_rays
+    model.render_rays = lambda rays, **kw: sizes.append(len(rays)) or render(rays, **kw)
+    full = view_residuals(trainer.pipeline)  # 24 x 24 px: every pixel of the 4 views
+    assert sizes == [24 * 24] * 4 and len(full) == 4
+    sizes.clear()
+    budget = view_residuals(trainer.pipeline, total_pixels=200)  # 50 a view: a stride of 4, 6 x 6 pixels
+    assert sizes == [36] * 4 and all(r["psnr"] > 0 for r in budget)

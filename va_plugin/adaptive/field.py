@@ -72,6 +72,12 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     """Samples whose rendering weight is at most this skip the branches and the attention and keep the
     shared colour (0: every sample takes the adaptive path). Such a sample changes its pixel by at most
     this fraction of the colour difference, and a ray's weights mostly sit on a few samples."""
+    fused_samples_per_ray: int = 0
+    """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
+    (every view's branch plus the attention); its other visible samples use their own view's branch,
+    the phase-2 path that fusion starts from (0: every visible sample is fused). Phase 3's cost grows
+    with n views x fused samples, and a ray's colour sits on a few samples near the surface. Novel
+    views, evaluation and mesh colours always take the full canonical path."""
     skip_consistent_scenes: bool = True
     """After pre-training, measure how well the shared field explains each input; when every view is
     explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
@@ -93,9 +99,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
             raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
                               f"{self.pretrain_fraction} and {self.branch_fraction}")
         if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale, self.min_sample_weight,
-               self.diagnostics_scale) < 0:
-            raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale, min_sample_weight and "
-                              "diagnostics_scale must be >= 0")
+               self.diagnostics_scale, self.fused_samples_per_ray) < 0:
+            raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale, min_sample_weight, "
+                              "diagnostics_scale and fused_samples_per_ray must be >= 0")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:
@@ -139,6 +145,8 @@ class ViewAdaptiveField(Field):
         self._last_alpha: Optional[tuple] = None
         self.adaptive_share = 0.0
         """Share of the last training batch's samples that took the branch/attention path."""
+        self.fused_share = 0.0
+        """Share of the last training batch's samples that took the fused path (phase 3)."""
 
     # -- phases (set by the trainer's callback) ---------------------------------------------------
     def set_phase(self, phase: int) -> None:
@@ -176,7 +184,7 @@ class ViewAdaptiveField(Field):
             return getattr(super().__getattr__("base"), name)
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
-              weights=None) -> Dict[str, torch.Tensor]:
+              weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
         """RGB ``[..., 3]`` of samples; training rays (``camera_indices >= 0``) use their view's
         f_fused,i, novel-view rays (-1) the canonical feature. While fusion trains, the per-sample
         regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along.
@@ -184,17 +192,18 @@ class ViewAdaptiveField(Field):
         Given the samples' rendering ``weights``, only samples weighing more than
         ``min_sample_weight`` go through the branches and the attention; the others (empty space,
         occluded points: most samples of a ray) keep the shared colour and contribute nothing to the
-        regularizers.
+        regularizers. While fusion trains, ``ray_indices`` (the ray of each sample) let
+        ``fused_samples_per_ray`` fuse only each ray's heaviest samples.
 
         With ``also_canonical`` set (the diagnostics do), ``rgb_canonical`` comes along: the canonical
         colour of the same samples, so one render pass gives both a view's own and its canonical image."""
-        out = self._color(positions, directions, normals, geo_features, camera_indices, weights)
+        out = self._color(positions, directions, normals, geo_features, camera_indices, weights, ray_indices)
         if self.also_canonical and "rgb_canonical" not in out:
             out["rgb_canonical"] = out["rgb"]
         return out
 
     def _color(self, positions, directions, normals, geo_features, camera_indices,
-               weights) -> Dict[str, torch.Tensor]:
+               weights, ray_indices=None) -> Dict[str, torch.Tensor]:
         shared = self.base.color_features(positions, directions, normals, geo_features)
         cfg = self.config
         if not self.branches_active():
@@ -212,20 +221,37 @@ class ViewAdaptiveField(Field):
             if self.also_canonical and cfg.canonical == "shared":
                 out["rgb_canonical"] = self.base.decode_color(flat)
             return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
-        active = weights.reshape(-1) > cfg.min_sample_weight
+        flat_weights = weights.reshape(-1)
+        active = flat_weights > cfg.min_sample_weight
         if cfg.canonical == "shared":
             active &= views >= 0
+        own_only = None
+        if (self.training and self.fusion_active() and cfg.fused_samples_per_ray > 0
+                and ray_indices is not None):
+            heavy = heaviest_per_ray(flat_weights, ray_indices.reshape(-1).to(flat.device),
+                                     cfg.fused_samples_per_ray)
+            own_only = active & ~heavy & (views >= 0)
+            active &= ~own_only
         index = active.nonzero().squeeze(-1)
         if self.training:
-            self.adaptive_share = index.numel() / max(flat.shape[0], 1)
-        sub = self._adaptive(flat[index], views[index], weights.reshape(-1)[index])
+            self.fused_share = index.numel() / max(flat.shape[0], 1) if self.fusion_active() else 0.0
+            self.adaptive_share = self.fused_share if own_only is None else \
+                self.fused_share + int(own_only.sum()) / max(flat.shape[0], 1)
+        sub = self._adaptive(flat[index], views[index], flat_weights[index])
         base_rgb = self.base.decode_color(flat)
-        out = {"rgb": base_rgb.index_copy(0, index, sub.pop("rgb"))}
+        rgb = base_rgb.index_copy(0, index, sub.pop("rgb"))
+        if own_only is not None:
+            own_index = own_only.nonzero().squeeze(-1)
+            own = self.branches.forward_own(flat[own_index], views[own_index])
+            rgb = rgb.index_copy(0, own_index, self.base.decode_color(own))
+        out = {"rgb": rgb}
         if "rgb_canonical" in sub:
             out["rgb_canonical"] = base_rgb.index_copy(0, index, sub.pop("rgb_canonical"))
         elif self.also_canonical and cfg.canonical == "shared":
             out["rgb_canonical"] = base_rgb  # the shared colour is the canonical one
-        for key, value in sub.items():  # per-sample regularizers: 0 where not evaluated
+        if sub:  # per-sample regularizers: 0 where not evaluated, averaged over where they were
+            out["va_evaluated"] = active.to(flat.dtype)
+        for key, value in sub.items():
             out[key] = value.new_zeros(flat.shape[0]).index_copy(0, index, value)
         return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
 
@@ -262,6 +288,8 @@ class ViewAdaptiveField(Field):
         """The weighted regularizers of eq. 14, averaged over samples by their rendering weights."""
         cfg = self.config
         weights = outputs.get("weights")
+        if weights is not None and "va_evaluated" in outputs:  # only where the regularizers were evaluated
+            weights = weights.detach() * outputs["va_evaluated"]
         losses: Dict[str, torch.Tensor] = {}
         if "va_entropy" in outputs:
             losses["entropy"] = cfg.entropy_weight * weighted_mean(outputs["va_entropy"], weights)
@@ -312,4 +340,24 @@ class ViewAdaptiveField(Field):
         out = {"phase": float(self.current_phase)}
         if self.branches_active():
             out["adaptive_share"] = round(self.adaptive_share, 4)
+        if self.fusion_active():
+            out["fused_share"] = round(self.fused_share, 4)
         return out
+
+
+def heaviest_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor, k: int) -> torch.Tensor:
+    """Which samples are among the ``k`` heaviest of their ray: ``weights [S], ray_indices [S] -> bool [S]``.
+
+    Samples may come in any order and rays with any number of samples; ties go to the earlier sample."""
+    if weights.numel() == 0:
+        return torch.zeros_like(weights, dtype=torch.bool)
+    by_weight = torch.argsort(weights, descending=True, stable=True)
+    order = by_weight[torch.argsort(ray_indices[by_weight], stable=True)]  # by ray, heaviest first
+    rays = ray_indices[order]
+    position = torch.arange(rays.numel(), device=rays.device)
+    new_ray = torch.ones_like(rays, dtype=torch.bool)
+    new_ray[1:] = rays[1:] != rays[:-1]
+    first = torch.cummax(torch.where(new_ray, position, torch.zeros_like(position)), 0).values
+    chosen = torch.zeros_like(weights, dtype=torch.bool)
+    chosen[order] = (position - first) < k
+    return chosen

@@ -45,10 +45,11 @@ class Field(nn.Module):
         raise NotImplementedError
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
-              weights=None) -> Dict[str, torch.Tensor]:
-        """RGB of samples. ``camera_indices`` (``[...]``, -1 for novel views) and the samples' detached
-        rendering ``weights`` (``[...]``, None where unknown, e.g. mesh colours) are ignored by plain
-        fields; a wrapper may use the weights to spend work only where a sample is visible."""
+              weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
+        """RGB of samples. ``camera_indices`` (``[...]``, -1 for novel views), the samples' detached
+        rendering ``weights`` (``[...]``, None where unknown, e.g. mesh colours) and the ray each sample
+        belongs to (``ray_indices``, ``[...]``) are ignored by plain fields; a wrapper may use them to
+        spend work only where a sample is visible, or only on a ray's heaviest samples."""
         return {"rgb": self.decode_color(self.color_features(positions, directions, normals, geo_features))}
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:

@@ -211,8 +211,10 @@ class NeuSModel(Model):
         sample_weights = pack(weights)
         normals = torch.nn.functional.normalize(gradients, dim=-1, eps=1e-6)
         camera_indices = pack(samples.camera_indices[:, None].expand(alpha.shape))
+        ray_indices = pack(torch.arange(alpha.shape[0], device=alpha.device)[:, None].expand(alpha.shape))
         color = self.field.color(positions if self.training else positions.detach(), directions, normals,
-                                 geo_features, camera_indices, weights=sample_weights.detach())
+                                 geo_features, camera_indices, weights=sample_weights.detach(),
+                                 ray_indices=ray_indices)
         outputs = {
             "rgb": renderers.render_rgb(weights, unpack(color["rgb"]), self.background),
             "accumulation": weights.sum(-1, keepdim=True),

@@ -153,7 +153,7 @@ class NGPModel(Model):
         alpha = renderers.alpha_from_density(scatter(trunc_exp(raw[..., 0]), keep), samples.deltas)
         weights = renderers.weights_from_alpha(alpha)
         color = self.field.color(positions, directions, torch.zeros_like(positions), geo_features, camera_indices,
-                                 weights=weights.detach()[keep])
+                                 weights=weights.detach()[keep], ray_indices=ray_index)
         if self.training:
             self.samples_per_ray = positions.shape[0] / max(len(ray_bundle), 1)
         outputs = {
