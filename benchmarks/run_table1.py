@@ -10,7 +10,7 @@ way. Writes into OUT:
     rows.jsonl       finished rows (what --resume reads); scenes/ (the scene cache) and runs/ (run folders)
 
     python benchmarks/run_table1.py --preset smoke|quick|full [--out DIR] [--scenes mug,knot,gso:alarm]
-        [--level 2] [--views 4] [--backbones neus,ngp] [--data-root ../shared/data/gso] [--resume]
+        [--level 2] [--views 4] [--backbones neus,ngp] [--data-root ../shared/data/gso] [--resume] [--jobs 2]
 """
 
 from __future__ import annotations

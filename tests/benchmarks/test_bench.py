@@ -127,6 +127,25 @@ def test_an_interrupt_loses_only_the_row_in_flight(scripts, tiny_scene, tmp_path
     assert len(calls) == 4
 
 
+@pytest.mark.parametrize("jobs", ["0", "-2"])
+def test_jobs_below_one_are_refused(jobs, scripts, tmp_path, capsys):
+    assert scripts["table1"].main(["--preset", "smoke", "--out", str(tmp_path / "out"), "--jobs", jobs]) == 2
+    assert capsys.readouterr().err.strip() == f"error: --jobs must be at least 1, got {jobs}"
+    assert not (tmp_path / "out").exists()
+
+
+def test_a_row_failing_in_a_worker_stops_the_benchmark_with_its_error(scripts, tmp_path, monkeypatch, capfd):
+    import multiprocessing
+
+    monkeypatch.setattr(bench_cli, "ensure_scene", lambda *args: tmp_path)  # no scene there: setup() raises
+    argv = ["--preset", "smoke", "--out", str(tmp_path / "out"), "--device", "cpu", "--jobs", "2"]
+    assert scripts["table1"].main(argv) == 2
+    captured = capfd.readouterr()
+    assert "NeuS: failed in its worker process; stopping the other rows" in captured.out
+    assert captured.err.strip().splitlines()[-1].startswith(f"error: {tmp_path} holds neither transforms")
+    assert not multiprocessing.active_children()
+
+
 def test_store_ignores_a_line_cut_short(tmp_path):
     store = ResultStore(tmp_path, resume=False)
     store.add({"key": "a", "fingerprint": "f", "cd": float("nan")})

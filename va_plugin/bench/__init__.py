@@ -9,5 +9,6 @@ The four scripts in ``benchmarks/`` (``run_table1.py``, ``run_views.py``, ``run_
   library (registry, trainer, ``va_plugin.eval``), with checkpoints along the run for time-vs-error curves;
 * :mod:`store`: the finished rows on disk (``rows.jsonl``), which ``--resume`` reads;
 * :mod:`report`: CSV, JSON, Markdown tables (mean and spread over scenes) and plots;
+* :mod:`parallel`: rows in worker processes (``--jobs N``);
 * :mod:`cli`: the shared command line, the loop over rows with progress, and the final summary.
 """

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import argparse
 import dataclasses
+import os
 import shlex
 import sys
 import time
@@ -18,6 +19,7 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
+from va_plugin.bench.parallel import RowTask, run_in_processes
 from va_plugin.bench.presets import BACKBONES, PRESETS, BenchPreset, get_preset
 from va_plugin.bench.report import fmt, machine_info
 from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, run_steps
@@ -81,7 +83,11 @@ def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
                         help="run the adaptive phases even on scenes whose inputs look consistent "
                              "(pipeline.model.field.skip_consistent_scenes=false)")
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda[:N]")
-    parser.add_argument("--threads", type=int, default=0, help="torch CPU threads (0: torch's default)")
+    parser.add_argument("--threads", type=int, default=0,
+                        help="torch CPU threads (of each row; 0: torch's default, with --jobs N the CPU count / N)")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="rows trained and evaluated at the same time, each in its own process (default 1: "
+                             "one after the other, in this process)")
     parser.add_argument("--resume", action="store_true",
                         help="skip the rows OUT already holds (same settings); continue an interrupted row")
     if experiment.add_arguments is not None:
@@ -141,32 +147,45 @@ def duration(seconds: float) -> str:
 
 
 class Progress:
-    """Elapsed time and an estimate of the rest, from the seconds per training step of the rows run so far
-    (evaluation and scene building included)."""
+    """Elapsed time and an estimate of the rest: the seconds per training step of the rows run so far
+    (evaluation and scene building included) times the steps left (less what the running rows have done),
+    divided by the rows that run at once."""
 
-    def __init__(self, budgets: Sequence[int]) -> None:
+    def __init__(self, budgets: Sequence[int], jobs: int = 1) -> None:
         self.started = time.perf_counter()
         self.budgets = list(budgets)
+        self.jobs = jobs
         self.remaining = set(range(len(budgets)))
+        self.running: Dict[int, float] = {}
+        """Rows under way -> when they started."""
         self.steps_done = 0
         self.seconds_spent = 0.0
 
     def elapsed(self) -> float:
         return time.perf_counter() - self.started
 
+    def start(self, index: int) -> None:
+        self.running[index] = time.perf_counter()
+
     def skip(self, index: int) -> None:
         self.remaining.discard(index)
+        self.running.pop(index, None)
 
-    def finish(self, index: int, seconds: float) -> None:
+    def finish(self, index: int) -> float:
+        """Count the row as done; its seconds since :meth:`start`."""
+        seconds = time.perf_counter() - self.running.pop(index)
         self.remaining.discard(index)
         self.steps_done += self.budgets[index]
         self.seconds_spent += seconds
+        return seconds
 
     def estimate(self) -> str:
         if not self.steps_done:
             return "no estimate yet"
-        left = sum(self.budgets[i] for i in self.remaining) * self.seconds_spent / self.steps_done
-        return f"about {duration(left)} left"
+        per_step, now = self.seconds_spent / self.steps_done, time.perf_counter()
+        work = sum(max(0.0, self.budgets[i] * per_step - (now - self.running.get(i, now)))
+                   for i in self.remaining)
+        return f"about {duration(work / max(1, min(self.jobs, len(self.remaining))))} left"
 
     def prefix(self, index: int) -> str:
         return f"[row {index + 1}/{len(self.budgets)} | {duration(self.elapsed())} elapsed, {self.estimate()}]"
@@ -193,12 +212,23 @@ def _settings(preset: BenchPreset, rows: List[RowSpec]) -> str:
             f"{preset.curve_points} checkpoints evaluated along each run")
 
 
+def jobs_and_threads(args: argparse.Namespace) -> tuple:
+    """(rows at once, torch threads of each row) from ``--jobs`` and ``--threads`` (threads 0: torch's
+    default for one row at a time, the CPU count shared out between the rows otherwise)."""
+    if args.jobs < 1:
+        raise ConfigError(f"--jobs must be at least 1, got {args.jobs}")
+    if args.threads > 0:
+        return args.jobs, args.threads
+    return args.jobs, (0 if args.jobs == 1 else max(1, (os.cpu_count() or 1) // args.jobs))
+
+
 def run_experiment(experiment: Experiment, args: argparse.Namespace, command: str) -> int:
     preset = preset_from_args(args)
-    if args.threads > 0:
+    jobs, threads = jobs_and_threads(args)
+    if jobs == 1 and threads > 0:
         import torch
 
-        torch.set_num_threads(args.threads)
+        torch.set_num_threads(threads)
     out = (args.out if args.out is not None else Path("outputs") / "bench" / f"{experiment.name}-{preset.name}")
     out = out.resolve()
     scene_names = preset.axis_scenes if experiment.axis_scenes else preset.scenes
@@ -208,13 +238,16 @@ def run_experiment(experiment: Experiment, args: argparse.Namespace, command: st
     rows = experiment.plan(preset, args, sources)
     store = ResultStore(out, args.resume)
     budgets = [run_steps(row, preset) for row in rows]
-    progress = Progress(budgets)
+    progress = Progress(budgets, jobs)
     meta: Dict[str, Any] = {"experiment": experiment.name, "title": experiment.title, "command": command,
                             "date": datetime.now().strftime("%Y-%m-%d %H:%M"), "preset": preset.name,
                             "preset_description": preset.description, "settings": _settings(preset, rows),
-                            "machine": machine_info(), "rows_planned": len(rows)}
+                            "machine": machine_info(), "rows_planned": len(rows), "jobs": jobs}
     meta["machine"]["load_average_start"] = meta["machine"].pop("load_average", None)
-    print(f"{experiment.title}: {len(rows)} rows, preset {preset.name}, results in {out}", flush=True)
+    if jobs > 1:
+        meta["machine"]["torch_threads"] = threads
+    at_once = f"; {jobs} rows at a time, {threads} torch thread{'' if threads == 1 else 's'} each" if jobs > 1 else ""
+    print(f"{experiment.title}: {len(rows)} rows, preset {preset.name}, results in {out}{at_once}", flush=True)
     results: Dict[str, Dict[str, Any]] = {}
     written: List[Path] = []
     skipped = 0
@@ -225,38 +258,75 @@ def run_experiment(experiment: Experiment, args: argparse.Namespace, command: st
         meta["machine"]["load_average_end"] = machine_info().get("load_average")
         return experiment.report(done, out, meta)
 
-    for index, row in enumerate(rows):
+    def prepare(index: int, row: RowSpec) -> Optional[RowTask]:
+        """The row's scene (built when missing), config and fingerprint; None when it finished earlier."""
+        nonlocal skipped
         scene_dir = out / "scenes" / row.scene.folder_name
         if not (scene_dir / "scene.json").is_file():
             print(f"{progress.prefix(index)} building scene {row.scene.name} (level {row.scene.level}, "
                   f"{row.scene.views} views, {row.scene.resolution} px)", flush=True)
-        row_started = time.perf_counter()
         scene_dir = ensure_scene(row.scene, out / "scenes", args.data_root)
         config = row_config(row, preset, scene_dir, out / "runs" / row.key, args.seed, args.device)
         row_fingerprint = fingerprint(config, preset.evaluation, out)
         stored = store.finished(row.key, row_fingerprint)
-        if stored is not None:
-            results[row.key] = stored
-            progress.skip(index)
-            skipped += 1
-            print(f"{progress.prefix(index)} {row.scene.name}: {row.label}: finished earlier, skipped", flush=True)
-            continue
-        print(f"{progress.prefix(index)} {row.scene.name}: {row.label} ({row.method}, {config.max_steps} steps)",
-              flush=True)
-        config.progress = sys.stderr.isatty()
-        try:
-            result = run_row(row, config, scene_dir, preset.evaluation, row_fingerprint)
-        except KeyboardInterrupt:
-            if results:
-                write_reports()
-            print(f"\ninterrupted in row {index + 1} ({row.key}); finished rows are kept in {store.path}. "
-                  "Rerun the same command with --resume to continue.", file=sys.stderr)
-            return EXIT_INTERRUPTED
+        if stored is None:
+            return RowTask(index, row, config, scene_dir, preset.evaluation, row_fingerprint)
+        results[row.key] = stored
+        progress.skip(index)
+        skipped += 1
+        print(f"{progress.prefix(index)} {row.scene.name}: {row.label}: finished earlier, skipped", flush=True)
+        return None
+
+    def start(task: RowTask) -> None:
+        if task.index not in progress.running:  # the sequential path starts the clock before the scene
+            progress.start(task.index)
+        row = task.row
+        print(f"{progress.prefix(task.index)} {row.scene.name}: {row.label} ({row.method}, "
+              f"{task.config.max_steps} steps)", flush=True)
+
+    def finish(task: RowTask, result: Dict[str, Any]) -> None:
+        nonlocal written
         store.add(result)
-        results[row.key] = result
-        progress.finish(index, time.perf_counter() - row_started)
-        print(f"    done in {duration(time.perf_counter() - row_started)}: {describe(result)}", flush=True)
+        results[task.row.key] = result
+        seconds = progress.finish(task.index)
+        where = "    " if jobs == 1 else f"{progress.prefix(task.index)} {task.row.scene.name}: {task.row.label}: "
+        print(f"{where}done in {duration(seconds)}: {describe(result)}", flush=True)
         written = write_reports()
+
+    def interrupted(in_flight: str) -> int:
+        if results:
+            write_reports()
+        print(f"\ninterrupted in {in_flight}; finished rows are kept in {store.path}. "
+              "Rerun the same command with --resume to continue.", file=sys.stderr)
+        return EXIT_INTERRUPTED
+
+    if jobs == 1:
+        for index, row in enumerate(rows):
+            progress.start(index)
+            task = prepare(index, row)
+            if task is None:
+                continue
+            start(task)
+            task.config.progress = sys.stderr.isatty()
+            try:
+                result = run_row(row, task.config, task.scene_dir, preset.evaluation, task.fingerprint)
+            except KeyboardInterrupt:
+                return interrupted(f"row {index + 1} ({row.key})")
+            finish(task, result)
+    else:
+        tasks = [task for task in (prepare(index, row) for index, row in enumerate(rows)) if task is not None]
+        for task in tasks:
+            task.config.progress = False  # bars of rows running at once would overwrite each other
+
+        def failed(task: RowTask) -> None:
+            progress.running.pop(task.index)
+            print(f"{progress.prefix(task.index)} {task.row.scene.name}: {task.row.label}: failed in its worker "
+                  "process; stopping the other rows", flush=True)
+
+        try:
+            run_in_processes(tasks, jobs, threads, start, finish, failed)
+        except KeyboardInterrupt:
+            return interrupted("row(s) " + ", ".join(f"{i + 1} ({rows[i].key})" for i in sorted(progress.running)))
     written = write_reports()
     ran = len(rows) - skipped
     print(f"\n{experiment.title}: {ran} rows run, {skipped} skipped as finished, in {duration(progress.elapsed())}")

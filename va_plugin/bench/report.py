@@ -115,11 +115,14 @@ def header_block(title: str, meta: Dict[str, Any], rows: Sequence[Dict[str, Any]
     """Title, command, date, machine and settings (the run's and the rows' evaluation) of a report."""
     machine = meta["machine"]
     load = machine.get("load_average_start")
+    jobs = meta.get("jobs", 1)
     lines = [f"# {title}", "",
              f"- command: `{meta['command']}`",
              f"- date: {meta['date']}; preset `{meta['preset']}`: {meta['preset_description']}",
              f"- machine: {machine['cpus']} CPU cores, torch {machine['torch']} with {machine['torch_threads']} "
              f"threads{'' if not machine.get('cuda') else ', ' + machine['cuda']}"
+             + (f"; {jobs} rows at a time, each in its own process with those threads (train seconds were "
+                f"measured with {jobs} rows training at once)" if jobs > 1 else "")
              + (f"; load average {load[0]} at the start, {machine.get('load_average_end', ['?'])[0]} at the end"
                 if load else ""),
              f"- {meta['settings']}; {settings_line(rows)}",
