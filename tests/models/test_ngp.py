@@ -26,9 +26,11 @@ class Spy:
             self.positions.append(positions.detach().reshape(-1, 3))
             return geometry(positions)
 
-        def recording_color(positions, directions, normals, geo_features, camera_indices=None, weights=None):
-            self.color_calls.append((positions.shape, camera_indices))
-            return color(positions, directions, normals, geo_features, camera_indices, weights=weights)
+        def recording_color(positions, directions, normals, geo_features, camera_indices=None, weights=None,
+                            ray_indices=None):
+            self.color_calls.append((positions.shape, camera_indices, ray_indices))
+            return color(positions, directions, normals, geo_features, camera_indices, weights=weights,
+                         ray_indices=ray_indices)
 
         field.geometry, field.color = counting_geometry, recording_color
 
@@ -93,9 +95,10 @@ def test_color_gets_each_samples_camera_index_and_weights_match(tiny_scene, tmp_
     spy = Spy(model.field)
     rays, _ = trainer.pipeline.datamanager.next_train(0)
     outputs = model.get_outputs(rays)
-    shape, camera = spy.color_calls[-1]
-    assert camera.dtype == torch.long and camera.shape == shape[:-1] == outputs["weights"].shape
-    assert set(camera.tolist()) <= set(rays.camera_indices.tolist())
+    shape, camera, ray = spy.color_calls[-1]
+    assert camera.dtype == torch.long and camera.shape == shape[:-1] == outputs["weights"].shape == ray.shape
+    assert torch.equal(camera, rays.camera_indices[ray])  # each sample knows its ray
+    assert bool((ray[1:] >= ray[:-1]).all())  # packed ray by ray
     assert {"rgb", "accumulation", "depth"} <= set(outputs)
     assert outputs["rgb"].shape == (len(rays), 3) and outputs["depth"].shape == (len(rays), 1)
 
