@@ -74,7 +74,8 @@ def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, canon
         "pipeline.model.field.skip_consistent_scenes": "false", "pipeline.model.field.diagnostics_scale": 0,
         "pipeline.model.field.pretrain_fraction": phase_fractions[0],
         "pipeline.model.field.branch_fraction": phase_fractions[1],
-        "pipeline.model.field.canonical": canonical}).setup()
+        "pipeline.model.field.canonical": canonical,
+        "pipeline.model.field.fused_samples_per_ray": 0 if canonical == "mean" else 1}).setup()
     trainer.train()
     field = trainer.model.field
     with torch.no_grad():  # make the branches and the attention matter

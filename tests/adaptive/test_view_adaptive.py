@@ -288,3 +288,13 @@ def test_the_consistency_check_renders_a_fixed_pixel_budget_over_all_views(tiny_
     sizes.clear()
     budget = view_residuals(trainer.pipeline, total_pixels=200)  # 50 a view: a stride of 4, 6 x 6 pixels
     assert sizes == [36] * 4 and all(r["psnr"] > 0 for r in budget)
+
+
+def test_mean_canonical_with_partial_fusion_is_refused_for_training(tiny_scene, tmp_path):
+    with pytest.raises(ConfigError, match="fused_samples_per_ray=0 with canonical=mean"):
+        _trainer("va-ngp", tiny_scene, tmp_path / "a", **{"pipeline.model.field.canonical": "mean"})
+    # fine: every sample fused, or no fusion at all
+    _trainer("va-ngp", tiny_scene, tmp_path / "b", **{"pipeline.model.field.canonical": "mean",
+                                                       "pipeline.model.field.fused_samples_per_ray": 0})
+    _trainer("va-ngp", tiny_scene, tmp_path / "c", **{"pipeline.model.field.canonical": "mean",
+                                                       "pipeline.model.field.fusion": "false"})

@@ -6,9 +6,10 @@ wrapper sits between the halves:
     f_shared --(branch i)--> f_i --(self-attention over i = 1..n)--> f_fused,i --decode--> RGB
 
 A ray from training view i renders with f_fused,i. Novel views, evaluation and mesh colours render
-with the *canonical* feature: the mean over views of f_fused,i (``canonical="mean"``, DESIGN.md's
-choice) or f_shared itself (``canonical="shared"``, as cheap as the base field). Geometry is the base
-field's, shared by all views, so one surface exists to extract.
+with the *canonical* feature: f_shared itself (``canonical="shared"``, the default: as cheap as the
+base field) or the mean over views of f_fused,i (``canonical="mean"``, DESIGN.md's first choice; see
+benchmarks/RESULTS.md for why it is no longer the default). Geometry is the base field's, shared by all
+views, so one surface exists to extract.
 
 The field knows nothing about training steps: it holds a phase flag (1 pre-training, 2 branches,
 3 fusion) that a trainer callback (``va_plugin.adaptive.phases``) sets.
@@ -60,8 +61,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     """Width of the query/key/value projections, split over the heads."""
     attention_heads: int = 4
     """Attention heads H (the paper: 4)."""
-    canonical: str = "mean"
-    """Feature for novel views and mesh colours: "mean" (mean over views of f_fused,i) or "shared" (f_shared)."""
+    canonical: str = "shared"
+    """Feature for novel views and mesh colours: "shared" (f_shared: as cheap as the base field) or "mean"
+    (mean over views of f_fused,i, which needs fused_samples_per_ray=0)."""
     pretrain_fraction: float = 1.0 / 3.0
     """Share of the step budget spent in phase 1, global pre-training (the paper: 100k of 300k)."""
     branch_fraction: float = 1.0 / 3.0
@@ -72,12 +74,13 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     """Samples whose rendering weight is at most this skip the branches and the attention and keep the
     shared colour (0: every sample takes the adaptive path). Such a sample changes its pixel by at most
     this fraction of the colour difference, and a ray's weights mostly sit on a few samples."""
-    fused_samples_per_ray: int = 0
+    fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
     (every view's branch plus the attention); its other visible samples use their own view's branch,
     the phase-2 path that fusion starts from (0: every visible sample is fused). Phase 3's cost grows
-    with n views x fused samples, and a ray's colour sits on a few samples near the surface. Novel
-    views, evaluation and mesh colours always take the full canonical path."""
+    with n views x fused samples, and a ray's colour sits on a few samples near the surface. With k > 0
+    the attention and the consistency loss see only those samples, so canonical="mean" (which fuses
+    every sample) is refused for training."""
     skip_consistent_scenes: bool = True
     """After pre-training, measure how well the shared field explains each input; when every view is
     explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
@@ -331,6 +334,14 @@ class ViewAdaptiveField(Field):
     def training_callbacks(self) -> list:
         from va_plugin.adaptive.phases import diagnostics_callback, phase_callback
 
+        cfg = self.config
+        if cfg.canonical == "mean" and cfg.fused_samples_per_ray > 0 and self.attention is not None:
+            # checked for training only: a run trained before this option existed still loads
+            raise ConfigError(
+                "canonical='mean' fuses every visible sample of a novel view, but with fused_samples_per_ray="
+                f"{cfg.fused_samples_per_ray} the attention and the consistency loss train only on each ray's "
+                "heaviest samples (measured: 3.5 dB lower held-out PSNR on va-neus); set "
+                "pipeline.model.field.fused_samples_per_ray=0 with canonical=mean, or keep canonical=shared")
         callbacks = [phase_callback(self)]
         if self.config.diagnostics_scale > 0:
             callbacks.append(diagnostics_callback(self))
