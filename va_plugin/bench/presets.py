@@ -1,8 +1,8 @@
 """Benchmark presets: which scenes, how long each run trains, and how it is evaluated.
 
 ``smoke`` checks the plumbing in well under two minutes (the test suite runs it); ``quick`` gives a first
-paired comparison on three level-2 scenes (the issue's target is twenty minutes on 2 idle CPU cores; measured
-2026-11-23: 1h30m on one core of a loaded machine, see benchmarks/RESULTS.md); ``full`` is the
+paired comparison on three level-2 scenes (the issue's target is twenty minutes on 2 idle CPU cores; Table 1
+measured 2026-11-23 with ``--jobs 2``: 9m10s, see benchmarks/RESULTS.md); ``full`` is the
 protocol of the paper's Sec. 4.1 as far as this machine allows: every procedural object and every
 Google Scanned Object under ``--data-root``, with each method's default step budget.
 """
@@ -84,7 +84,7 @@ PRESETS: Dict[str, BenchPreset] = {
     "quick": BenchPreset(
         name="quick",
         description="three level-2 procedural scenes at 256 px, each method's 'fast' preset "
-                    "(target 20 minutes on 2 idle cores; 1h30m measured on one loaded core)",
+                    "(target 20 minutes on 2 idle cores; Table 1 with --jobs 2: 9 minutes)",
         scenes=("mug", "knot", "chair"), axis_scenes=("mug",), method_preset="fast",
         evaluation=EvalSettings(image_scale=0.25, max_views=4, mesh_resolution=96, n_samples=100_000),
         curve_points=3),
