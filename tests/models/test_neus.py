@@ -72,3 +72,36 @@ def test_training_logs_samples_per_ray(tiny_scene, tmp_path):
     coarse = cfg.n_samples + 2
     assert 0 < record["samples_per_ray"] <= coarse + cfg.n_importance - 1
     assert coarse <= record["probed_per_ray"] <= coarse + cfg.n_importance // cfg.up_sample_steps
+
+
+@pytest.mark.parametrize("skip_far_samples", [False, True])
+def test_color_gets_each_samples_ray_and_camera_index(skip_far_samples, tiny_scene, tmp_path):
+    """The ray index each sample carries (the view-adaptive field ranks samples within a ray by it) must
+    be that sample's ray, packed or not."""
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.skip_far_samples": str(skip_far_samples).lower()})
+    model = trainer.model
+    calls = []
+    color = model.field.color
+
+    def recording_color(positions, directions, normals, geo_features, camera_indices=None, weights=None,
+                        ray_indices=None):
+        calls.append((positions.detach().clone(), directions, camera_indices, ray_indices))
+        return color(positions, directions, normals, geo_features, camera_indices, weights=weights,
+                     ray_indices=ray_indices)
+
+    model.field.color = recording_color
+    rays, _ = trainer.pipeline.datamanager.next_train(0)
+    model.get_outputs(rays)
+    positions, directions, camera, ray = calls[-1]
+    assert ray.shape == camera.shape == positions.shape[:-1]
+    # packed [n_kept] with the band, [n_rays, n_samples] without: the field flattens them row-major
+    positions, directions = positions.reshape(-1, 3), directions.reshape(-1, 3)
+    camera, ray = camera.reshape(-1), ray.reshape(-1)
+    assert bool((ray[1:] >= ray[:-1]).all())
+    assert ray.unique().numel() <= len(rays)
+    # samples that share a ray index lie on one ray: same direction, same camera, collinear positions
+    first = torch.searchsorted(ray, ray)  # index of the first sample of each sample's ray (packed ray by ray)
+    assert torch.equal(directions, directions[first]) and torch.equal(camera, camera[first])
+    offset = positions - positions[first]
+    across = torch.linalg.cross(offset, directions[first], dim=-1).norm(dim=-1)
+    assert float(across.max()) < 1e-4
