@@ -165,7 +165,10 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     1% of a sphere's faces costs about 1% IoU), but a mesh with large openings
     has no well-defined inside and its IoU means little.
     """
-    import open3d as o3d  # heavy import, only needed here
+    from va_plugin.utils.interrupts import interrupt_deferred
+
+    with interrupt_deferred():  # heavy import, only needed here; a Ctrl-C during it fails the import
+        import open3d as o3d
 
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(

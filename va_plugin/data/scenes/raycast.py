@@ -10,9 +10,13 @@ from dataclasses import dataclass
 from typing import Callable, Optional, Tuple
 
 import numpy as np
-import open3d as o3d
 import torch
 import trimesh
+
+from va_plugin.utils.interrupts import interrupt_deferred
+
+with interrupt_deferred():  # open3d's module init turns a Ctrl-C into "ImportError: initialization failed"
+    import open3d as o3d
 
 from va_plugin.cameras import Cameras
 

@@ -1,0 +1,35 @@
+"""Holding back Ctrl-C while code that swallows it runs.
+
+trimesh imports its optional dependencies inside ``try: ... except BaseException``: a KeyboardInterrupt
+that lands during ``import trimesh`` is caught there, the interrupted module is replaced by a stand-in
+that fails later, and the program carries on as if no Ctrl-C had come (a benchmark interrupted two
+seconds after its start ran to the end and exited 0). Inside :func:`interrupt_deferred` a SIGINT only
+sets a flag; the KeyboardInterrupt is raised when the block ends.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import signal
+import threading
+from typing import Iterator
+
+
+@contextlib.contextmanager
+def interrupt_deferred() -> Iterator[None]:
+    """Run the block with SIGINT held back, then raise KeyboardInterrupt if one came meanwhile.
+
+    Does nothing off the main thread (signal handlers can only be set there) or when SIGINT is not
+    Python's default handler (ignored, as in background jobs, or handled by someone else)."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGINT) is not signal.default_int_handler):
+        yield
+        return
+    received = []
+    signal.signal(signal.SIGINT, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGINT, signal.default_int_handler)
+    if received:
+        raise KeyboardInterrupt
