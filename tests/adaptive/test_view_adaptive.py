@@ -264,6 +264,11 @@ def test_fused_samples_per_ray_fuses_each_rays_heaviest_and_gives_the_rest_their
     w = weights[fused]
     expected = field.config.entropy_weight * (part["va_entropy"][fused] * w).sum() / w.sum()
     torch.testing.assert_close(losses["entropy"], expected)
+    # phase 2: every visible sample takes its branch, none is fused
+    field.set_phase(BRANCHES)
+    field.color(*args, weights=weights, ray_indices=rays)
+    assert field.adaptive_share == pytest.approx(10 / 12) and field.fused_share == 0.0
+    field.set_phase(FUSION)
     # outside training (evaluation, diagnostics) every visible sample takes the full path
     field.eval()
     torch.testing.assert_close(field.color(*args, weights=weights, ray_indices=rays)["rgb"],

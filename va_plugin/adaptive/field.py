@@ -237,9 +237,9 @@ class ViewAdaptiveField(Field):
             active &= ~own_only
         index = active.nonzero().squeeze(-1)
         if self.training:
-            self.fused_share = index.numel() / max(flat.shape[0], 1) if self.fusion_active() else 0.0
-            self.adaptive_share = self.fused_share if own_only is None else \
-                self.fused_share + int(own_only.sum()) / max(flat.shape[0], 1)
+            share = index.numel() / max(flat.shape[0], 1)
+            self.fused_share = share if self.fusion_active() else 0.0
+            self.adaptive_share = share if own_only is None else share + int(own_only.sum()) / max(flat.shape[0], 1)
         sub = self._adaptive(flat[index], views[index], flat_weights[index])
         base_rgb = self.base.decode_color(flat)
         rgb = base_rgb.index_copy(0, index, sub.pop("rgb"))
