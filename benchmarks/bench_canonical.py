@@ -1,7 +1,7 @@
 """Which canonical feature renders novel views better, on the same trained view-adaptive weights.
 
 A view-adaptive run renders novel views with a canonical feature: the mean over views of f_fused,i
-(``canonical=mean``, the default) or f_shared (``canonical=shared``). Both are read off the same trained
+(``canonical=mean``) or f_shared (``canonical=shared``, the default). Both are read off the same trained
 weights, so one run scores both, and the difference is the canonical feature alone.
 
     python benchmarks/bench_canonical.py RUN [RUN ...] [--image-scale 0.5] [--max-views 4] [--threads 1]

@@ -195,8 +195,9 @@ class ViewAdaptiveField(Field):
         Given the samples' rendering ``weights``, only samples weighing more than
         ``min_sample_weight`` go through the branches and the attention; the others (empty space,
         occluded points: most samples of a ray) keep the shared colour and contribute nothing to the
-        regularizers. While fusion trains, ``ray_indices`` (the ray of each sample) let
-        ``fused_samples_per_ray`` fuse only each ray's heaviest samples.
+        regularizers. In the fusion phase, ``ray_indices`` (the ray of each sample) let
+        ``fused_samples_per_ray`` fuse only each ray's heaviest samples, in training and when a
+        training view is rendered afterwards (diagnostics), so such a render shows what trained.
 
         With ``also_canonical`` set (the diagnostics do), ``rgb_canonical`` comes along: the canonical
         colour of the same samples, so one render pass gives both a view's own and its canonical image."""
@@ -229,7 +230,7 @@ class ViewAdaptiveField(Field):
         if cfg.canonical == "shared":
             active &= views >= 0
         own_only = None
-        if (self.training and self.fusion_active() and cfg.fused_samples_per_ray > 0
+        if (self.fusion_active() and cfg.fused_samples_per_ray > 0
                 and ray_indices is not None):
             heavy = heaviest_per_ray(flat_weights, ray_indices.reshape(-1).to(flat.device),
                                      cfg.fused_samples_per_ray)
