@@ -54,7 +54,8 @@ def plan(preset, args, sources: List[str]) -> List[RowSpec]:
             for label, overrides in STEPS:
                 rows.append(RowSpec("ablation", scene, backbone, adaptive=overrides is not None,
                                     variant=f"{title}: {label}",
-                                    overrides=() if overrides is None else FORCE + overrides))
+                                    overrides=() if overrides is None
+                                    else FORCE + tuple(args.adaptive_set) + overrides))
     return rows
 
 

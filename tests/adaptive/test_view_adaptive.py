@@ -285,15 +285,27 @@ def test_the_consistency_check_renders_a_fixed_pixel_budget_over_all_views(tiny_
     from va_plugin.adaptive.phases import view_residuals
 
     trainer = _trainer("va-ngp", tiny_scene, tmp_path / "run", steps=1)
-    model = trainer.pipeline.model
+    model, dm = trainer.pipeline.model, trainer.pipeline.datamanager
     sizes = []
     render = model.render_rays
     model.render_rays = lambda rays, **kw: sizes.append(len(rays)) or render(rays, **kw)
+    # with masks: foreground pixels only, spread evenly, the budget shared out over the views
+    counts = [int((dm.masks[v, ..., 0] > 0.5).sum()) for v in range(4)]
+    assert 0 < min(counts) and max(counts) < 24 * 24
+    every = view_residuals(trainer.pipeline, foreground_pixels=10 ** 6)
+    assert sizes == counts and all(r["psnr"] == r["psnr_foreground"] for r in every)
+    sizes.clear()
+    some = view_residuals(trainer.pipeline, foreground_pixels=80)  # 20 a view
+    assert sizes == [min(20, c) for c in counts]
+    assert all(abs(a["psnr_foreground"] - b["psnr_foreground"]) < 3.0 for a, b in zip(some, every))
+    # without masks: an even stride over the whole image
+    dm.masks = None
+    sizes.clear()
     full = view_residuals(trainer.pipeline)  # 24 x 24 px: every pixel of the 4 views
     assert sizes == [24 * 24] * 4 and len(full) == 4
     sizes.clear()
     budget = view_residuals(trainer.pipeline, total_pixels=200)  # 50 a view: a stride of 4, 6 x 6 pixels
-    assert sizes == [36] * 4 and all(r["psnr"] > 0 for r in budget)
+    assert sizes == [36] * 4 and all(r["psnr"] > 0 and "psnr_foreground" not in r for r in budget)
 
 
 def test_mean_canonical_with_partial_fusion_is_refused_for_training(tiny_scene, tmp_path):

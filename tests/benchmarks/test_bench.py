@@ -56,6 +56,24 @@ def test_views_and_sweep_vary_their_axis(scripts):
     assert [r.scene.level for r in sweep] == [0, 0, 2, 2]
 
 
+def test_adaptive_set_changes_the_adaptive_rows_only(scripts, tmp_path):
+    setting = "pipeline.model.field.shared_lr_scale=0.5"
+    args = args_for(scripts["table1"], "--backbones", "ngp", "--adaptive-set", setting)
+    rows = scripts["table1"].plan(SMOKE, args, ["procedural:mug"])
+    configs = [row_config(r, SMOKE, tmp_path, tmp_path / r.key) for r in rows]
+    assert [r.overrides for r in rows] == [(), (setting,)]
+    assert configs[1].pipeline.model.field.shared_lr_scale == 0.5
+    default = row_config(scripts["table1"].plan(SMOKE, args_for(scripts["table1"], "--backbones", "ngp"),
+                                                ["procedural:mug"])[1], SMOKE, tmp_path, tmp_path / "d")
+    assert fingerprint(default, SMOKE.evaluation, tmp_path) != fingerprint(configs[1], SMOKE.evaluation, tmp_path)
+    ablation = scripts["ablation"].plan(SMOKE, args_for(scripts["ablation"], "--adaptive-set", setting),
+                                        ["procedural:mug"])
+    assert [setting in r.overrides for r in ablation] == [False] + [True] * 4
+    with pytest.raises(ConfigError, match="PATH=VALUE"):
+        scripts["table1"].plan(SMOKE, args_for(scripts["table1"], "--adaptive-set", "shared_lr_scale"),
+                               ["procedural:mug"])
+
+
 def test_ablation_rows_are_cumulative_and_force_the_adaptive_phases(scripts, tmp_path):
     rows = scripts["ablation"].plan(SMOKE, args_for(scripts["ablation"]), ["procedural:mug"])
     assert [r.method for r in rows] == ["neus"] + ["va-neus"] * 4

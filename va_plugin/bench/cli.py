@@ -82,6 +82,10 @@ def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
     parser.add_argument("--force-adaptive", action="store_true",
                         help="run the adaptive phases even on scenes whose inputs look consistent "
                              "(pipeline.model.field.skip_consistent_scenes=false)")
+    parser.add_argument("--adaptive-set", action="append", default=[], metavar="PATH=VALUE",
+                        help="config override for the view-adaptive rows only, as va-train's --set (repeatable; "
+                             "e.g. pipeline.model.field.shared_lr_scale=1.0): a variant against the same "
+                             "original rows")
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda[:N]")
     parser.add_argument("--threads", type=int, default=0,
                         help="torch CPU threads (of each row; 0: torch's default, with --jobs N the CPU count / N)")
@@ -122,7 +126,13 @@ def backbones_from_args(args: argparse.Namespace) -> List[str]:
 
 
 def adaptive_overrides(args: argparse.Namespace) -> tuple:
-    return ("pipeline.model.field.skip_consistent_scenes=false",) if args.force_adaptive else ()
+    """``--force-adaptive`` and ``--adaptive-set`` as overrides of the view-adaptive rows."""
+    forced = ("pipeline.model.field.skip_consistent_scenes=false",) if args.force_adaptive else ()
+    extra = tuple(getattr(args, "adaptive_set", None) or ())
+    bad = [a for a in extra if "=" not in a or not a.split("=", 1)[0].strip()]
+    if bad:
+        raise ConfigError(f"--adaptive-set takes PATH=VALUE, got {bad[0]!r}")
+    return forced + extra
 
 
 def paired_rows(experiment: str, scene, args: argparse.Namespace) -> List[RowSpec]:
