@@ -1,7 +1,7 @@
 """The three training phases of the paper's Sec. 3.4, switched by a trainer callback.
 
 Phase 1 trains the shared field alone; phase 2 adds the per-view branches at the full learning rate
-while the shared field drops to ``shared_lr_scale`` of its own; phase 3 switches the attention fusion
+while the shared field goes on at ``shared_lr_scale`` of its own (1.0 by default; the paper's 0.1); phase 3 switches the attention fusion
 on. Phase boundaries are fractions of the step budget, so the phase of a step is a pure function of
 (step, budget): a resumed run lands in the same phase without extra state.
 
