@@ -12,12 +12,12 @@ Writes a JSON of the held-out PSNR, SSIM and LPIPS per run and canonical feature
 from __future__ import annotations
 
 import argparse
-import json
 import time
 from pathlib import Path
 
 import torch
 
+from va_plugin.bench.store import print_record
 from va_plugin.cli.run import load_run
 from va_plugin.eval.evaluate import image_metrics
 
@@ -50,11 +50,7 @@ def main() -> None:
     torch.set_num_threads(args.threads)
     record = {"date": time.strftime("%Y-%m-%d"), "image_scale": args.image_scale, "max_views": args.max_views,
               "results": [score(run, args.image_scale, args.max_views) for run in args.runs]}
-    text = json.dumps(record, indent=2)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
-    print(text)
+    print_record(record, args.out)
 
 
 if __name__ == "__main__":

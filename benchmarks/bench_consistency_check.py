@@ -13,7 +13,6 @@ each way and the spread the test thresholds.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import platform
 import statistics
@@ -22,6 +21,7 @@ from pathlib import Path
 
 import torch
 
+from va_plugin.bench.store import print_record
 from va_plugin.adaptive.phases import view_residuals
 from va_plugin.cli.run import load_run
 
@@ -67,11 +67,7 @@ def main() -> None:
     record = {"date": time.strftime("%Y-%m-%d %H:%M"), "threads": args.threads, "cpus": os.cpu_count(),
               "platform": platform.platform(), "torch": torch.__version__,
               "results": [measure(run, args.rounds) for run in args.runs]}
-    text = json.dumps(record, indent=2)
-    if args.out is not None:
-        args.out.parent.mkdir(parents=True, exist_ok=True)
-        args.out.write_text(text)
-    print(text)
+    print_record(record, args.out)
 
 
 if __name__ == "__main__":

@@ -63,3 +63,12 @@ class ResultStore:
             handle.flush()
             os.fsync(handle.fileno())
         self.rows[row["key"]] = row
+
+
+def print_record(record: Dict[str, Any], out: Optional[Path] = None) -> None:
+    """Print a measurement record as indented JSON, and write it to ``out`` too when given."""
+    text = json.dumps(_finite_or_none(record), indent=2)
+    if out is not None:
+        Path(out).parent.mkdir(parents=True, exist_ok=True)
+        Path(out).write_text(text)
+    print(text)
