@@ -18,7 +18,9 @@ from pathlib import Path
 import torch
 
 from va_plugin.bench.store import print_record
+from va_plugin.cli.common import friendly_errors
 from va_plugin.cli.run import load_run
+from va_plugin.errors import ConfigError
 from va_plugin.eval.evaluate import image_metrics
 
 CANONICALS = ("mean", "shared")
@@ -28,7 +30,7 @@ def score(run: Path, image_scale: float, max_views: int) -> dict:
     pipeline, state = load_run(run, "cpu")
     field = pipeline.model.field
     if not hasattr(field, "config") or not hasattr(field.config, "canonical"):
-        raise SystemExit(f"{run}: not a view-adaptive run")
+        raise ConfigError(f"{run}: not a view-adaptive run")
     result = {"run": str(run), "method": state.get("method_name"), "step": int(state["step"]),
               "phase": int(field.current_phase)}
     for canonical in CANONICALS:
@@ -39,7 +41,8 @@ def score(run: Path, image_scale: float, max_views: int) -> dict:
     return result
 
 
-def main() -> None:
+@friendly_errors
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", type=Path, nargs="+", help="run folders of va-neus / va-ngp")
     parser.add_argument("--image-scale", type=float, default=0.5)
@@ -51,7 +54,8 @@ def main() -> None:
     record = {"date": time.strftime("%Y-%m-%d"), "image_scale": args.image_scale, "max_views": args.max_views,
               "results": [score(run, args.image_scale, args.max_views) for run in args.runs]}
     print_record(record, args.out)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -22,8 +22,10 @@ from pathlib import Path
 import torch
 
 from va_plugin.bench.store import print_record
+from va_plugin.cli.common import friendly_errors
 from va_plugin.adaptive.phases import view_residuals
 from va_plugin.cli.run import load_run
+from va_plugin.errors import ConfigError
 
 WAYS = {"stride": dict(foreground_pixels=0), "foreground": dict()}
 
@@ -36,7 +38,7 @@ def spread(residuals) -> float:
 def measure(run: Path, rounds: int) -> dict:
     pipeline, state = load_run(run, "cpu")
     if pipeline.datamanager.masks is None:
-        raise SystemExit(f"{run}: its data has no foreground masks; the two ways are the same there")
+        raise ConfigError(f"{run}: its data has no foreground masks; the two ways are the same there")
     seconds = {way: [] for way in WAYS}
     residuals = {}
     for _ in range(rounds):
@@ -56,7 +58,8 @@ def measure(run: Path, rounds: int) -> dict:
     return result
 
 
-def main() -> None:
+@friendly_errors
+def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("runs", type=Path, nargs="+", help="run folders (any method; the check uses the shared field)")
     parser.add_argument("--rounds", type=int, default=3)
@@ -68,7 +71,8 @@ def main() -> None:
               "platform": platform.platform(), "torch": torch.__version__,
               "results": [measure(run, args.rounds) for run in args.runs]}
     print_record(record, args.out)
+    return 0
 
 
 if __name__ == "__main__":
-    main()
+    raise SystemExit(main())

@@ -18,7 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any, Dict, List
 
-from va_plugin.bench.cli import Experiment, backbones_from_args, main as bench_main
+from va_plugin.bench.cli import Experiment, adaptive_overrides, backbones_from_args, main as bench_main
 from va_plugin.bench.presets import BACKBONE_TITLES
 from va_plugin.bench.report import (DELTA_TITLES, delta_cell, fmt_delta, group_rows, markdown_table, metric_delta,
                                     plot_time_curves, report_sections, write_outputs)
@@ -55,7 +55,7 @@ def plan(preset, args, sources: List[str]) -> List[RowSpec]:
                 rows.append(RowSpec("ablation", scene, backbone, adaptive=overrides is not None,
                                     variant=f"{title}: {label}",
                                     overrides=() if overrides is None
-                                    else FORCE + tuple(args.adaptive_set) + overrides))
+                                    else FORCE + adaptive_overrides(args) + overrides))
     return rows
 
 

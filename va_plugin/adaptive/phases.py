@@ -1,8 +1,8 @@
 """The three training phases of the paper's Sec. 3.4, switched by a trainer callback.
 
 Phase 1 trains the shared field alone; phase 2 adds the per-view branches at the full learning rate
-while the shared field goes on at ``shared_lr_scale`` of its own (1.0 by default; the paper's 0.1); phase 3 switches the attention fusion
-on. Phase boundaries are fractions of the step budget, so the phase of a step is a pure function of
+while the shared field goes on at ``shared_lr_scale`` of its own (1.0 by default; the paper's 0.1);
+phase 3 switches the attention fusion on. Phase boundaries are fractions of the step budget, so the phase of a step is a pure function of
 (step, budget): a resumed run lands in the same phase without extra state.
 
 At the end of phase 1 the callback can measure whether the inputs disagree at all (see
@@ -47,8 +47,9 @@ def view_residuals(pipeline, max_pixels: int = 4096, total_pixels: int = 16384,
     whose mask is empty, renders up to ``max_pixels`` pixels of the view, at most ``total_pixels`` over
     all views, on an even stride over the image. Either way the check costs about the same at 16 views
     as at 4, touches no random generator (a resumed run decides the same), and renders with the
-    canonical path (``foreground_pixels=0``: the stride even with masks). Returns per view the PSNR against the input over the rendered pixels and, with
-    masks, over their foreground (then the same pixels).
+    canonical path (``foreground_pixels=0``: the stride even with masks). Returns per view the PSNR
+    against the input over the rendered pixels and, with masks, over their foreground (then the same
+    pixels).
     """
     dm = pipeline.datamanager
     height, width = dm.images.shape[1:3]
