@@ -10,6 +10,15 @@ import pytest
 from va_plugin.utils.interrupts import interrupt_deferred
 
 
+@pytest.fixture(autouse=True)
+def python_sigint_handler():
+    """These tests need Python's own SIGINT handler; a run started in the background (``make test &``)
+    inherits SIGINT ignored, where interrupt_deferred rightly does nothing."""
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    yield
+    signal.signal(signal.SIGINT, previous)
+
+
 def _swallowing_code():
     """What trimesh does around its optional imports."""
     try:
