@@ -25,6 +25,7 @@ setup(
         "opencv-contrib-python-headless",
         "scikit-image",  # marching cubes
         "tqdm",          # progress bars
+        "xatlas",        # UV atlases of extracted meshes for baked textures (va-export mesh --texture)
     ],
     extras_require={
         "test": ["pytest", "hypothesis"],
