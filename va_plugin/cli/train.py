@@ -24,6 +24,22 @@ def build_parser(methods) -> argparse.ArgumentParser:
                "is generated and used.")
     parser.add_argument("method", help="one of the methods listed above")
     parser.add_argument("--data", type=Path, default=None, help="scene folder or generator output")
+    add_object_options(parser)
+    parser.add_argument("--masks", type=Path, default=None,
+                        help="generator inputs: mask folder (one image per view) or one mask image in the "
+                             "input's layout, instead of the colour key")
+    parser.add_argument("--output-dir", type=Path, default=None, help="run folder (default outputs/METHOD)")
+    parser.add_argument("--resume", action="store_true", help="continue from the run folder's newest checkpoint")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    parser.add_argument("--export-mesh", action="store_true", help="write mesh.ply into the run folder at the end")
+    parser.add_argument("--default-scene-resolution", type=int, default=256,
+                        help="image size of the embedded default scene")
+    return parser
+
+
+def add_object_options(parser: argparse.ArgumentParser) -> None:
+    """The options that make sense for every object of a batch (va-batch takes them too): how to read the
+    input and what to train."""
     parser.add_argument("--data-format", default="auto", metavar="{auto," + ",".join(FORMATS) + "}",
                         help="input format (default auto: detected from the input)")
     parser.add_argument("--views", type=int, default=None,
@@ -31,22 +47,12 @@ def build_parser(methods) -> argparse.ArgumentParser:
     parser.add_argument("--elevation", type=float, default=None,
                         help="SyncDreamer: camera elevation in degrees (default 30)")
     parser.add_argument("--rig", default=None, help="Zero123++: model version, v1.1 or v1.2 (default v1.2)")
-    parser.add_argument("--masks", type=Path, default=None,
-                        help="generator inputs: mask folder (one image per view) or one mask image in the "
-                             "input's layout, instead of the colour key")
-    parser.add_argument("--output-dir", type=Path, default=None, help="run folder (default outputs/METHOD)")
     parser.add_argument("--preset", default=None, help="a named variant of the method (see its presets)")
     parser.add_argument("--steps", type=int, default=None, help="step budget (overrides the method's)")
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 42)")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N] (default auto)")
-    parser.add_argument("--resume", action="store_true", help="continue from the run folder's newest checkpoint")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="PATH=VALUE",
                         help="override any config value, e.g. pipeline.model.eikonal_weight=0.05")
-    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
-    parser.add_argument("--export-mesh", action="store_true", help="write mesh.ply into the run folder at the end")
-    parser.add_argument("--default-scene-resolution", type=int, default=256,
-                        help="image size of the embedded default scene")
-    return parser
 
 
 # flag -> (dataparser option, the formats that have it)
