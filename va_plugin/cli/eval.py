@@ -23,6 +23,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of the run's mesh")
     parser.add_argument("--image-scale", type=float, default=1.0, help="render held-out views at this scale")
     parser.add_argument("--max-views", type=int, default=None, help="evaluate at most this many held-out views")
+    parser.add_argument("--texture", action="store_true",
+                        help="also bake a textured mesh from the input views and score its ray-cast renders at the "
+                        "held-out views (mesh_psnr, mesh_ssim, mesh_lpips)")
+    parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
+    parser.add_argument("--fusion", choices=("robust", "mean"), default="robust", help="per-texel fusion of the views")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
     parser.add_argument("--no-progress", action="store_true")
     return parser
@@ -35,18 +40,59 @@ def main(argv: Optional[List[str]] = None) -> int:
         raise ConfigError("--mesh-resolution must be at least 8 and --image-scale positive")
     if args.scene is not None and not (args.scene / "scene.json").is_file():
         raise ConfigError(f"{args.scene} holds no scene.json")
+    if args.texture:
+        from va_plugin.export.texture import check_texture_size
+
+        check_texture_size(args.texture_size)
     from va_plugin.eval.evaluate import evaluate_run
 
     pipeline, state = load_run(args.load_dir, device=args.device)
+    mesh = None
+    if args.texture:
+        from va_plugin.export.mesh import extract_mesh
+
+        mesh = extract_mesh(pipeline.model, resolution=args.mesh_resolution, with_color=False)
     result = evaluate_run(pipeline, state, args.scene, args.mesh_resolution, args.image_scale, args.max_views,
-                          progress=not args.no_progress)
+                          progress=not args.no_progress, mesh=mesh)
+    if args.texture:
+        result.update(textured_mesh_scores(pipeline, mesh, args, "lpips" in result))
     output = args.output if args.output is not None else args.load_dir / "eval.json"
     tmp = output.with_name(output.name + ".tmp")  # a killed va-eval leaves no half-written eval.json
     tmp.write_text(json.dumps(result, indent=2))
     tmp.replace(output)
     shown = ", ".join(f"{k} {result[k]:.4g}" for k in ("psnr", "ssim", "lpips", "cd", "iou", "fscore") if k in result)
     print(f"{shown}; written to {output}")
+    if args.texture:
+        print(side_by_side(result))
     return 0
+
+
+def textured_mesh_scores(pipeline, mesh, args, use_lpips: bool):
+    """``mesh_psnr``, ``mesh_ssim``, ``mesh_lpips`` of the run's mesh textured from its input views."""
+    import time
+
+    from va_plugin.eval.mesh_render import textured_mesh_metrics
+    from va_plugin.export.texture import bake_texture, field_fallback, run_views
+
+    started = time.perf_counter()
+    textured, report = bake_texture(mesh, run_views(pipeline), size=args.texture_size, fusion=args.fusion,
+                                    fallback=field_fallback(pipeline.model), progress=not args.no_progress)
+    scores = textured_mesh_metrics(pipeline, textured, args.image_scale, args.max_views, use_lpips,
+                                   progress=not args.no_progress)
+    out = {f"mesh_{k}": scores[k] for k in ("psnr", "ssim", "lpips") if k in scores}
+    out["texture_params"] = {"size": args.texture_size, "fusion": args.fusion, **report.summary(),
+                             "seconds_total": round(time.perf_counter() - started, 2)}
+    return out
+
+
+def side_by_side(result) -> str:
+    """The held-out scores of the field's renders and of the textured mesh's renders, one row each."""
+    rows = [f"{'held-out views':<16}{'psnr':>8}{'ssim':>8}{'lpips':>8}"]
+    for name, prefix in (("field", ""), ("textured mesh", "mesh_")):
+        cells = "".join(f"{result[prefix + k]:>8.4f}" if prefix + k in result else f"{'-':>8}"
+                        for k in ("psnr", "ssim", "lpips"))
+        rows.append(f"{name:<16}{cells}")
+    return "\n".join(rows)
 
 
 if __name__ == "__main__":

@@ -19,6 +19,13 @@ def build_parser() -> argparse.ArgumentParser:
     mesh.add_argument("--output", type=Path, default=None, help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply)")
     mesh.add_argument("--resolution", type=int, default=128, help="marching-cubes grid resolution")
     mesh.add_argument("--largest-component", action="store_true", help="keep only the largest connected part")
+    mesh.add_argument("--texture", action="store_true",
+                      help="UV-unwrap the mesh and bake a texture from the input views (.glb or .obj+.mtl+.png)")
+    mesh.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
+    mesh.add_argument("--fusion", choices=("robust", "mean"), default="robust",
+                      help="how disagreeing views are fused per texel: robust consensus or weighted mean")
+    mesh.add_argument("--use-inconsistency", action="store_true",
+                      help="view-adaptive runs: weight each view down where its inconsistency map is high")
     render = sub.add_parser("render", help="held-out views and a turntable (PNG frames and MP4)")
     render.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
     render.add_argument("--output-dir", type=Path, default=None, help="default RUN/renders")
@@ -42,19 +49,35 @@ def main(argv: Optional[List[str]] = None) -> int:
 
     if getattr(args, "resolution", 2) < 2 or getattr(args, "frames", 1) < 1 or getattr(args, "scale", 1.0) <= 0:
         raise ConfigError("--resolution must be at least 2, --frames at least 1 and --scale positive")
-    if args.what == "mesh" and args.output is not None:
+    if args.what == "mesh":  # options are checked before minutes of marching cubes, not after
         from va_plugin.export.mesh import MESH_FORMATS
+        from va_plugin.export.texture import check_texture_output, check_texture_size
 
-        if args.output.suffix.lower() not in MESH_FORMATS:  # before minutes of marching cubes, not after
+        if args.output is None:
+            args.output = args.load_dir / ("mesh.glb" if args.texture else "mesh.ply")
+        if args.output.suffix.lower() not in MESH_FORMATS:
             raise ConfigError(f"unknown mesh format {args.output.suffix!r}; use one of {', '.join(MESH_FORMATS)}")
+        if args.texture:
+            check_texture_size(args.texture_size)
+            check_texture_output(args.output)
     pipeline, _ = load_run(args.load_dir, device=args.device)
     if args.what == "mesh":
         from va_plugin.export.mesh import extract_mesh, write_mesh
 
-        output = args.output if args.output is not None else args.load_dir / "mesh.ply"
-        mesh = extract_mesh(pipeline.model, resolution=args.resolution, largest_component=args.largest_component)
-        write_mesh(mesh, output)
-        print(f"mesh with {len(mesh.vertices)} vertices and {len(mesh.faces)} faces written to {output}")
+        mesh = extract_mesh(pipeline.model, resolution=args.resolution, largest_component=args.largest_component,
+                            with_color=not args.texture)
+        if args.texture:
+            from va_plugin.export.texture import texture_run_mesh
+
+            textured, report, written = texture_run_mesh(pipeline, mesh, args.output, args.texture_size, args.fusion,
+                                                         args.use_inconsistency)
+            seen = report.seen / max(report.covered, 1)
+            print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces and a "
+                  f"{args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view) written to "
+                  + ", ".join(str(p) for p in written))
+            return 0
+        write_mesh(mesh, args.output)
+        print(f"mesh with {len(mesh.vertices)} vertices and {len(mesh.faces)} faces written to {args.output}")
         return 0
     if args.what == "diagnostics":
         from va_plugin.adaptive.diagnostics import write_diagnostics

@@ -48,9 +48,10 @@ def load_mesh(path: Path) -> trimesh.Trimesh:
 
 
 def image_metrics(pipeline, image_scale: float = 1.0, max_views: Optional[int] = None, use_lpips: bool = True,
-                  progress: bool = True, render_dir: Optional[Path] = None) -> Dict[str, Any]:
-    """Mean PSNR, SSIM and LPIPS over the held-out views, rendered on the canonical path; with
-    ``render_dir`` each view is also written there as ``view_XXX.png`` (render | ground truth)."""
+                  progress: bool = True, render_dir: Optional[Path] = None, render_fn=None) -> Dict[str, Any]:
+    """Mean PSNR, SSIM and LPIPS over the held-out views, rendered on the canonical path (or by
+    ``render_fn(cameras, index)``, see :func:`held_out_views`); with ``render_dir`` each view is also
+    written there as ``view_XXX.png`` (render | ground truth)."""
     test = pipeline.datamanager.test
     if test is None:
         return {}
@@ -58,7 +59,8 @@ def image_metrics(pipeline, image_scale: float = 1.0, max_views: Optional[int] =
         weight_paths()  # raises LPIPSWeightsMissing before any view is rendered
     scores: Dict[str, list] = {"psnr": [], "ssim": [], "lpips": []}
     size = None
-    for i, render, target in held_out_views(pipeline, image_scale, max_views, progress, desc="evaluating views"):
+    for i, render, target in held_out_views(pipeline, image_scale, max_views, progress, desc="evaluating views",
+                                              render_fn=render_fn):
         scores["psnr"].append(psnr(render, target))
         scores["ssim"].append(ssim(render, target))
         if use_lpips:

@@ -65,16 +65,17 @@ def render_turntable(model, out_dir: Path, n_frames: int = 24, resolution: int =
 
 
 def held_out_views(pipeline, scale: float = 1.0, max_views: int | None = None, progress: bool = True,
-                   desc: str = "test views") -> Iterator[Tuple[int, np.ndarray, np.ndarray]]:
+                   desc: str = "test views", render_fn=None) -> Iterator[Tuple[int, np.ndarray, np.ndarray]]:
     """``(index, render, target)`` of the first ``max_views`` held-out views (all when None), rendered on
-    the canonical path at ``scale`` of the scene's size, the target resized to match (area filter)."""
+    the canonical path at ``scale`` of the scene's size, the target resized to match (area filter).
+    ``render_fn(cameras, index) -> [H, W, 3]`` renders something else at those cameras (a textured mesh)."""
     test = pipeline.datamanager.test
     if test is None:
         return
     cameras = test.cameras.scaled(scale) if scale != 1.0 else test.cameras
     count = len(test) if max_views is None else min(max_views, len(test))
     for i in tqdm(range(count), desc=desc, disable=not progress):
-        render = render_view(pipeline.model, cameras, i)
+        render = render_view(pipeline.model, cameras, i) if render_fn is None else render_fn(cameras, i)
         target = test.images[i].numpy()
         if scale != 1.0:
             target = cv2.resize(target, (cameras.width, cameras.height), interpolation=cv2.INTER_AREA)

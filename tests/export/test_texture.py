@@ -1,0 +1,167 @@
+"""Texture baking on hand-made cases: a cube whose colours are known everywhere, seen by known cameras."""
+
+import numpy as np
+import pytest
+import trimesh
+
+from va_plugin.data.rigs import orbit_cameras
+from va_plugin.errors import VAError
+from va_plugin.eval.mesh_render import UnlitMeshRenderer, render_on_background, textured_renderer
+from va_plugin.export.texture import (Views, bake_texture, bilinear, check_texture_size, dilate, fuse,
+                                      weighted_medoid, write_textured_mesh)
+
+RES = 48
+TEXTURE = 64
+
+
+def smooth_colour(points: np.ndarray) -> np.ndarray:
+    """A colour that varies slowly over the cube (so bilinear sampling errors stay small)."""
+    return np.clip(0.5 + 0.8 * points[:, [0, 1, 2]] * np.array([1.0, -1.0, 1.0]), 0.0, 1.0).astype(np.float32)
+
+
+def cube(size: float = 0.6) -> trimesh.Trimesh:
+    return trimesh.creation.box(extents=(size, size, size))
+
+
+def cube_views(mesh, azimuths, elevations, colour=smooth_colour):
+    cameras = orbit_cameras(azimuths, elevations, resolution=RES, pixel_offset=0.5)
+    renderer = UnlitMeshRenderer(mesh, lambda hits: colour(hits.points))
+    images, masks = [], []
+    for k in range(len(cameras)):
+        rgba = renderer.render(cameras, k, supersample=3)
+        images.append(rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:]))
+        masks.append(rgba[..., 3] > 0.5)
+    return Views(cameras, np.stack(images).astype(np.float32), np.stack(masks))
+
+
+def texel_truth(textured):
+    """Per covered texel: its known colour, from where it lies on the surface."""
+    from va_plugin.export.texture import rasterize_uv
+
+    face, bary = rasterize_uv(textured.uv, textured.faces, TEXTURE)
+    covered = face >= 0
+    corners = textured.faces[face[covered]]
+    points = np.einsum("mk,mkc->mc", bary[covered], textured.vertices[corners])
+    return covered, points
+
+
+SIX_SIDES = dict(azimuths=[0, 90, 180, 270, 45, 135, 225, 315, 45, 225], elevations=[20] * 4 + [0] * 4 + [80, -80])
+
+
+def test_a_cube_seen_from_all_sides_bakes_back_its_colours():
+    mesh = cube()
+    views = cube_views(mesh, SIX_SIDES["azimuths"], SIX_SIDES["elevations"])
+    textured, report = bake_texture(mesh, views, size=TEXTURE, fusion="robust")
+    covered, points = texel_truth(textured)
+    error = np.abs(textured.image[covered] - smooth_colour(points)).mean(-1)
+    # texels on the cube's edges lie on some view's silhouette edge: they are filled from their neighbours
+    assert report.seen > 0.9 * report.covered
+    assert np.median(error) < 0.005 and np.percentile(error, 95) < 0.03 and error.max() < 0.15
+    # rendered back at a view it was not baked from, it matches a render of the true colours
+    cameras = orbit_cameras([130.0], [35.0], resolution=RES, pixel_offset=0.5)
+    truth = render_on_background(UnlitMeshRenderer(mesh, lambda h: smooth_colour(h.points)), cameras, 0)
+    baked = render_on_background(textured_renderer(textured), cameras, 0)
+    assert np.abs(baked - truth).mean() < 0.005
+
+
+def test_an_occluded_texel_takes_no_colour_from_the_view_that_cannot_see_it():
+    # a small box hides the middle of a big face from camera 0 only; the camera 0 colour there is red
+    big = trimesh.creation.box(extents=(0.2, 1.0, 1.0))  # face at x = +0.1 faces camera 0 (on +x)
+    blocker = trimesh.creation.box(extents=(0.1, 0.3, 0.3))
+    blocker.apply_translation([0.6, 0, 0])
+    mesh = trimesh.util.concatenate([big, blocker])
+    cameras = orbit_cameras([0.0, 30.0], [0.0, 0.0], resolution=RES, pixel_offset=0.5)
+    truth = UnlitMeshRenderer(mesh, lambda h: np.where(h.points[:, :1] > 0.4, [[1.0, 0.0, 0.0]],
+                                                       [[0.2, 0.4, 0.9]]).astype(np.float32))
+    images = []
+    for k in range(2):
+        rgba = truth.render(cameras, k, supersample=2)
+        images.append(rgba[..., :3] * rgba[..., 3:] + (1.0 - rgba[..., 3:]))
+    views = Views(cameras, np.stack(images).astype(np.float32))
+    textured, report = bake_texture(mesh, views, size=TEXTURE, fusion="mean")
+    covered, points = texel_truth(textured)
+    front = (np.abs(points[:, 0] - 0.1) < 1e-4) & (np.abs(points[:, 1]) < 0.06) & (np.abs(points[:, 2]) < 0.06)
+    assert front.sum() > 3
+    shares = report.weight_maps[:, covered][:, front]  # [views, texels]
+    assert np.all(shares[0] == 0) and np.allclose(shares[1], 1.0)
+    assert np.abs(textured.image[covered][front] - [0.2, 0.4, 0.9]).max() < 0.05
+
+
+def test_a_wrong_view_is_outvoted_by_three_agreeing_ones():
+    red, blue = [0.9, 0.1, 0.1], [0.1, 0.2, 0.9]
+    colours = np.array([[red, red, red, blue]] * 200, np.float32)
+    colours[:, :3] += np.random.default_rng(0).normal(0, 0.01, (200, 3, 3)).astype(np.float32)
+    weights = np.tile(np.float32([0.5, 0.6, 0.7, 1.0]), (200, 1))  # the wrong view is the most head-on
+    robust, share = fuse(colours, weights, "robust")
+    mean, _ = fuse(colours, weights, "mean")
+    assert np.abs(robust - red).max() < 0.05
+    assert share[:, 3].max() < 0.02
+    assert np.abs(mean - red).max() > 0.2  # a plain average would ghost
+
+
+def test_agreeing_views_fuse_to_their_weighted_mean_either_way():
+    rng = np.random.default_rng(1)
+    colours = np.repeat(rng.uniform(0, 1, (100, 1, 3)), 4, 1).astype(np.float32)
+    colours += rng.normal(0, 0.005, colours.shape).astype(np.float32)
+    weights = rng.uniform(0.1, 1, (100, 4)).astype(np.float32)
+    weights[:10, 2:] = 0
+    robust, _ = fuse(colours, weights, "robust")
+    mean, _ = fuse(colours, weights, "mean")
+    assert np.abs(robust - mean).max() < 0.01
+
+
+def test_medoid_picks_a_visible_colour():
+    colours = np.float32([[[0, 0, 0], [1, 1, 1], [0.9, 0.9, 0.9]]])
+    assert np.allclose(weighted_medoid(colours, np.float32([[1, 1, 0]])), [0, 0, 0])  # tie: first
+    assert np.allclose(weighted_medoid(colours, np.float32([[1, 1, 1]])), [0.9, 0.9, 0.9])
+
+
+def test_dilation_pads_charts_and_fills_the_rest():
+    image = np.zeros((8, 8, 3), np.float32)
+    filled = np.zeros((8, 8), bool)
+    image[3, 3], filled[3, 3] = 0.7, True
+    out = dilate(image, filled, iterations=2)
+    assert np.allclose(out[1:6, 1:6], 0.7) and np.allclose(out, 0.7)
+
+
+def test_bilinear_samples_pixel_centres_at_integers():
+    image = np.arange(12, dtype=np.float32).reshape(3, 4)
+    assert np.allclose(bilinear(image, np.float32([0, 1.5, 9]), np.float32([0, 1, 2])), [0, 5.5, 11])
+
+
+@pytest.mark.parametrize("size", [0, 15, 100, 1000, 16384])
+def test_texture_sizes_must_be_sane_powers_of_two(size):
+    with pytest.raises(VAError, match="power of two"):
+        check_texture_size(size)
+
+
+def test_bad_input_is_refused():
+    mesh = cube()
+    views = cube_views(mesh, [0.0], [20.0])
+    with pytest.raises(VAError, match="no faces"):
+        bake_texture(trimesh.Trimesh(np.zeros((3, 3)), np.zeros((0, 3), int)), views, size=TEXTURE)
+    far = trimesh.creation.box(extents=(0.1, 0.1, 0.1))
+    far.apply_translation([0, 0, 5])  # behind / outside every camera
+    with pytest.raises(VAError, match="view 0 sees no texel"):
+        bake_texture(far, views, size=TEXTURE)
+
+
+@pytest.mark.parametrize("suffix", [".glb", ".obj"])
+def test_written_files_load_back_with_their_texture(tmp_path, suffix):
+    mesh = cube()
+    views = cube_views(mesh, SIX_SIDES["azimuths"], SIX_SIDES["elevations"])
+    textured, _ = bake_texture(mesh, views, size=TEXTURE)
+    written = write_textured_mesh(textured, tmp_path / f"cube{suffix}")
+    names = sorted(p.name for p in tmp_path.iterdir())
+    assert names == sorted(p.name for p in written)
+    if suffix == ".obj":
+        assert names == ["cube.mtl", "cube.obj", "cube.png"]
+        assert "cube.png" in (tmp_path / "cube.mtl").read_text()
+    loaded = trimesh.load(tmp_path / f"cube{suffix}", force="mesh")
+    image = np.asarray(loaded.visual.material.to_simple().image if suffix == ".glb"
+                       else loaded.visual.material.image).astype(np.float32)[..., :3] / 255
+    assert image.shape == (TEXTURE, TEXTURE, 3)
+    assert np.abs(image - textured.image).max() < 1.5 / 255
+    assert len(loaded.faces) == len(textured.faces)
+    # UVs survive the round trip (GLB stores v down; trimesh flips it back)
+    assert np.abs(np.sort(loaded.visual.uv, 0) - np.sort(textured.uv, 0)).max() < 1e-4

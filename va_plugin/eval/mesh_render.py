@@ -1,0 +1,61 @@
+"""Rendering a textured mesh at any camera by ray casting (CPU, no GPU, no lighting: the baked texture
+already holds the appearance the inputs showed), so it can be scored like the field's novel views."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from va_plugin.cameras import Cameras
+from va_plugin.data.scenes.raycast import MeshRenderer, SurfaceHits
+from va_plugin.export.texture import bilinear
+
+
+class UnlitMeshRenderer(MeshRenderer):
+    """A :class:`MeshRenderer` whose hits show their albedo as it is (no light)."""
+
+    def shade(self, face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        corners = self.faces[face_ids]
+        points = np.einsum("nk,nkc->nc", bary, self.rest_vertices[corners]).astype(np.float32)
+        return np.clip(self.albedo(SurfaceHits(points, corners, bary.astype(np.float32))), 0.0, 1.0)
+
+
+class BakedTexture:
+    """Albedo of a :class:`va_plugin.export.texture.TexturedMesh`: its image sampled bilinearly at the hits'
+    UVs, with texel centres where the baker put them (``uv = ((c + 0.5) / S, 1 - (r + 0.5) / S)``)."""
+
+    def __init__(self, textured) -> None:
+        self.uv = textured.uv
+        self.image = textured.image
+
+    def __call__(self, hits: SurfaceHits) -> np.ndarray:
+        uv = np.einsum("nk,nkc->nc", hits.barycentric, self.uv[hits.corners])
+        h, w = self.image.shape[:2]
+        return bilinear(self.image, uv[:, 0] * w - 0.5, (1.0 - uv[:, 1]) * h - 0.5)
+
+
+def textured_renderer(textured) -> UnlitMeshRenderer:
+    """A renderer of a :class:`va_plugin.export.texture.TexturedMesh`."""
+    import trimesh
+
+    mesh = trimesh.Trimesh(textured.vertices, textured.faces, process=False)
+    return UnlitMeshRenderer(mesh, BakedTexture(textured))
+
+
+def render_on_background(renderer: MeshRenderer, cameras: Cameras, index: int, background=(1.0, 1.0, 1.0),
+                         supersample: int = 2) -> np.ndarray:
+    """RGB ``[H, W, 3]`` of view ``index`` composited on ``background`` (edges anti-aliased)."""
+    rgba = renderer.render(cameras, index, supersample=supersample)
+    bg = np.asarray(background, np.float32)
+    return (rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])).astype(np.float32)
+
+
+def textured_mesh_metrics(pipeline, textured, image_scale: float = 1.0, max_views=None, use_lpips: bool = True,
+                          progress: bool = True, render_dir=None):
+    """PSNR, SSIM and LPIPS of a textured mesh rendered at the run's held-out views (ray casting), scored
+    exactly like the field's novel views (:func:`va_plugin.eval.evaluate.image_metrics`)."""
+    from va_plugin.eval.evaluate import image_metrics
+
+    renderer = textured_renderer(textured)
+    background = pipeline.datamanager.test.background if pipeline.datamanager.test is not None else (1, 1, 1)
+    return image_metrics(pipeline, image_scale, max_views, use_lpips, progress, render_dir,
+                         render_fn=lambda cameras, i: render_on_background(renderer, cameras, i, background))

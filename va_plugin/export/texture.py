@@ -1,0 +1,505 @@
+"""Textured meshes: a UV atlas for an extracted mesh and a texture baked from the input views.
+
+Per texel (a point on the surface): project it into every training view, keep the views that see it
+(ray casting against the mesh itself), weight each by how head-on it sees the surface and how far the
+point lies from that view's silhouette edge (edge pixels are blended with the background), then fuse:
+
+- ``mean``: the weighted average of the visible views' colours (ghosting where views disagree);
+- ``robust``: the weighted medoid of the visible colours (the view colour closest to the others) as a
+  consensus, then a few reweighting rounds in which a view loses weight when it deviates from the
+  consensus by more than its own noise (the median deviation of that view over the whole mesh).
+
+Texels no view sees take the field's colour (a fall-back callable); empty texels around the charts are
+filled by dilation so that bilinear filtering and mip-mapping do not bleed the background into seams.
+
+Conventions: ``uv`` has v up (OBJ, trimesh); texel ``(row r, column c)`` of an ``S x S`` texture sits at
+``uv = ((c + 0.5) / S, 1 - (r + 0.5) / S)``.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Callable, Dict, List, Optional
+
+import cv2
+import numpy as np
+import torch
+import trimesh
+from tqdm import tqdm
+
+from va_plugin.cameras import Cameras
+from va_plugin.data.images import write_image
+from va_plugin.data.scenes.raycast import o3d, smooth_vertex_normals
+from va_plugin.errors import VAError
+
+TEXTURE_FORMATS = (".glb", ".obj")
+MIN_TEXTURE_SIZE = 16
+MAX_TEXTURE_SIZE = 8192
+"""Largest texture side accepted (8192^2 texels hold ~64M surface samples, far beyond any input view)."""
+FUSIONS = ("robust", "mean")
+
+EDGE_PIXELS = 3.0
+"""A view's weight rises from 0 at EDGE_MARGIN pixels inside its silhouette to 1 this many pixels further."""
+EDGE_MARGIN = 1.5
+"""Pixels this close to the silhouette edge blend the object with the background: they give no colour."""
+MIN_COS = 0.1
+"""Views seeing the surface more grazing than this (cos of the angle to the normal) are ignored."""
+NOISE_FLOOR = 0.02
+"""Smallest per-view noise (RGB distance) of the robust fusion, so a near-perfect view is not over-trusted."""
+OUTLIER_SCALE = 2.0
+"""A view deviating from the consensus by this many times its noise keeps 1/2 of its weight (Cauchy)."""
+ROBUST_ROUNDS = 3
+INCONSISTENCY_SCALE = 0.05
+"""With inconsistency maps: a view keeps exp(-map / this) of its weight (0.05 = a clear disagreement)."""
+PADDING_TEXELS = 16
+
+
+@dataclass
+class TexturedMesh:
+    """A mesh with per-vertex UVs and its texture.
+
+    Attributes:
+        vertices: ``[v, 3]`` float32 (split along UV seams).
+        faces: ``[f, 3]`` int64.
+        uv: ``[v, 2]`` float32 in [0, 1], v up.
+        image: ``[S, S, 3]`` float32 RGB in [0, 1].
+    """
+
+    vertices: np.ndarray
+    faces: np.ndarray
+    uv: np.ndarray
+    image: np.ndarray
+
+    def to_trimesh(self) -> trimesh.Trimesh:
+        from PIL import Image
+
+        texture = Image.fromarray((np.clip(self.image, 0, 1) * 255 + 0.5).astype(np.uint8))
+        material = trimesh.visual.material.PBRMaterial(baseColorTexture=texture, metallicFactor=0.0,
+                                                       roughnessFactor=1.0, name="baked")
+        visual = trimesh.visual.TextureVisuals(uv=self.uv, material=material)
+        return trimesh.Trimesh(self.vertices, self.faces, visual=visual, process=False)
+
+
+@dataclass
+class Views:
+    """Input views to bake from.
+
+    Attributes:
+        cameras: ``n`` cameras.
+        images: ``[n, H, W, 3]`` float32, composited on the background.
+        masks: ``[n, H, W]`` bool foreground masks, or None (then the mesh's own silhouettes are used).
+        inconsistency: ``[n, h, w]`` float32 per-view disagreement maps (any resolution), or None.
+    """
+
+    cameras: Cameras
+    images: np.ndarray
+    masks: Optional[np.ndarray] = None
+    inconsistency: Optional[np.ndarray] = None
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+@dataclass
+class BakeReport:
+    """What the bake did: per-view weight maps in texture space and counts."""
+
+    weight_maps: np.ndarray  # [n, S, S] share of each view in each texel's colour
+    covered: int  # texels on the surface
+    seen: int  # of those, texels at least one view sees
+    view_texels: List[int]  # texels each view sees
+    seconds: Dict[str, float] = field(default_factory=dict)
+
+    def summary(self) -> Dict[str, object]:
+        total = np.maximum(self.weight_maps.sum(0), 1e-12)
+        share = [float(m.sum() / max(total[total > 1e-12].size, 1)) for m in self.weight_maps]
+        return {"texels_on_surface": self.covered, "texels_seen": self.seen,
+                "texels_fallback": self.covered - self.seen, "view_texels": self.view_texels,
+                "view_share": [round(s, 4) for s in share],
+                "seconds": {k: round(v, 2) for k, v in self.seconds.items()}}
+
+
+def check_texture_size(size: int) -> None:
+    """Refuse texture sizes that are not a power of two or outside [16, 8192]."""
+    if size < MIN_TEXTURE_SIZE or size > MAX_TEXTURE_SIZE or size & (size - 1):
+        raise VAError(f"--texture-size must be a power of two from {MIN_TEXTURE_SIZE} to {MAX_TEXTURE_SIZE}, "
+                      f"got {size}")
+
+
+def unwrap(mesh: trimesh.Trimesh, size: int, padding: int = 4):
+    """xatlas charts packed into one ``size x size`` atlas.
+
+    Returns ``vertices [v', 3]``, ``faces [f, 3]``, ``uv [v', 2]`` (v up) and ``source [v']``, the original
+    vertex of each new one (vertices on chart seams are duplicated)."""
+    import xatlas
+
+    faces = np.asarray(mesh.faces)
+    if len(faces) == 0:
+        raise VAError("the mesh has no faces: nothing to texture")
+    atlas = xatlas.Atlas()
+    atlas.add_mesh(np.asarray(mesh.vertices, np.float32), faces.astype(np.uint32))
+    pack = xatlas.PackOptions()
+    pack.resolution = size
+    pack.padding = padding
+    pack.bilinear = True
+    atlas.generate(xatlas.ChartOptions(), pack)
+    if atlas.atlas_count != 1:
+        # a fixed resolution lets xatlas spill charts into more atlases: scale them into one instead
+        pack.resolution = 0
+        pack.texels_per_unit = 0.0
+        atlas.generate(xatlas.ChartOptions(), pack)
+    source, new_faces, uv = atlas[0]
+    uv = np.asarray(uv, np.float32).copy()
+    uv[:, 1] = 1.0 - uv[:, 1]  # xatlas' v runs down the atlas image; ours runs up
+    source = np.asarray(source, np.int64)
+    return np.asarray(mesh.vertices, np.float32)[source], np.asarray(new_faces, np.int64), uv, source
+
+
+def rasterize_uv(uv: np.ndarray, faces: np.ndarray, size: int):
+    """Which triangle covers each texel centre, and where.
+
+    Returns ``face [S, S]`` int64 (-1 where no triangle covers the centre) and ``bary [S, S, 3]``."""
+    corners = np.stack([uv[:, 0] * size, (1.0 - uv[:, 1]) * size, np.zeros(len(uv))], -1).astype(np.float32)
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(corners), o3d.core.Tensor(faces.astype(np.uint32)))
+    rows, cols = np.meshgrid(np.arange(size, dtype=np.float32), np.arange(size, dtype=np.float32), indexing="ij")
+    origins = np.stack([cols + 0.5, rows + 0.5, np.ones_like(rows)], -1).reshape(-1, 3)
+    rays = np.concatenate([origins, np.broadcast_to(np.float32([0, 0, -1]), origins.shape)], -1)
+    result = scene.cast_rays(o3d.core.Tensor(np.ascontiguousarray(rays, np.float32)))
+    hit = np.isfinite(result["t_hit"].numpy())
+    face = np.where(hit, result["primitive_ids"].numpy().astype(np.int64), -1)
+    b = result["primitive_uvs"].numpy()
+    bary = np.stack([1.0 - b[:, 0] - b[:, 1], b[:, 0], b[:, 1]], -1)  # o3d: (1-u-v) a + u b + v c
+    return face.reshape(size, size), bary.reshape(size, size, 3).astype(np.float32)
+
+
+def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``image [H, W, C]`` (or ``[H, W]``) at continuous pixel coordinates ``x, y [m]`` (pixel centres at
+    integers, clamped to the border): ``[m, C]`` (or ``[m]``)."""
+    h, w = image.shape[:2]
+    x = np.clip(x, 0.0, w - 1.0)
+    y = np.clip(y, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = x - x0, y - y0
+    if image.ndim == 3:
+        fx, fy = fx[:, None], fy[:, None]
+    top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
+    bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
+    return (top * (1 - fy) + bottom * fy).astype(np.float32)
+
+
+def rays_through(cameras: Cameras, index: int, points: np.ndarray):
+    """Rays of view ``index`` through world points ``[m, 3]``: ``origins, directions [m, 3]``, the points'
+    distance along them ``[m]`` and their pixel coordinates ``[m, 2]`` (column, row)."""
+    pts = torch.as_tensor(points, dtype=torch.float32)
+    uv, _ = cameras.project(pts, index)
+    idx = torch.full((len(pts),), index, dtype=torch.long)
+    origins, directions = cameras.generate_rays(idx, uv[:, 1], uv[:, 0])
+    distance = ((pts - origins) * directions).sum(-1)
+    return origins.numpy(), directions.numpy(), distance.numpy(), uv.numpy()
+
+
+def silhouette_distance(scene, cameras: Cameras, index: int, mask: Optional[np.ndarray]) -> np.ndarray:
+    """Distance in pixels ``[H, W]`` to the nearest pixel outside the object in view ``index`` (0 outside);
+    the object is where the mesh is hit and, when given, ``mask`` is set."""
+    _, rows, cols = cameras.pixel_grid(index)
+    origins, directions = cameras.generate_rays(torch.full_like(rows, index), rows, cols)
+    rays = np.concatenate([origins.numpy(), directions.numpy()], -1).astype(np.float32)
+    inside = np.isfinite(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()).reshape(cameras.height,
+                                                                                           cameras.width)
+    if mask is not None:
+        inside &= mask
+    padded = np.pad(inside.astype(np.uint8), 1)  # the image border counts as an edge
+    return cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
+
+
+def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, normals: np.ndarray, views: Views,
+                 edge_pixels: float = EDGE_PIXELS, progress: bool = False):
+    """Colour and weight of every view at every surface point.
+
+    Args:
+        vertices, faces: the mesh (its triangles occlude).
+        points, normals: ``[m, 3]`` surface points and unit outward normals.
+    Returns:
+        colours ``[m, n, 3]`` and weights ``[m, n]`` (0 where view k does not see the point).
+    """
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    edges = np.linalg.norm(vertices[faces[:, 1]] - vertices[faces[:, 0]], axis=-1)
+    tolerance = 0.5 * float(np.median(edges)) if len(edges) else 1e-3  # depth slack of the visibility test
+    m, n = len(points), len(views)
+    colours = np.zeros((m, n, 3), np.float32)
+    weights = np.zeros((m, n), np.float32)
+    cameras = views.cameras
+    for k in tqdm(range(n), desc="projecting views", disable=not progress):
+        origins, directions, distance, pix = rays_through(cameras, k, points)
+        cos = -(normals * directions).sum(-1)
+        candidate = (cos > MIN_COS) & (distance > 0)
+        candidate &= (pix[:, 0] > -0.5) & (pix[:, 0] < cameras.width - 0.5)
+        candidate &= (pix[:, 1] > -0.5) & (pix[:, 1] < cameras.height - 0.5)
+        idx = np.nonzero(candidate)[0]
+        if len(idx) == 0:
+            continue
+        rays = np.concatenate([origins[idx], directions[idx]], -1).astype(np.float32)
+        t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        idx = idx[t_hit >= distance[idx] - tolerance]  # nothing in front of the point
+        edge = silhouette_distance(scene, cameras, k, None if views.masks is None else views.masks[k])
+        x, y = pix[idx, 0], pix[idx, 1]
+        w = cos[idx] ** 2 * np.clip((bilinear(edge, x, y) - EDGE_MARGIN) / max(edge_pixels, 1e-6), 0.0, 1.0)
+        if views.inconsistency is not None:
+            imap = views.inconsistency[k]
+            sx, sy = imap.shape[1] / cameras.width, imap.shape[0] / cameras.height
+            spread = bilinear(imap, (x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5)
+            w = w * np.exp(-np.maximum(spread, 0.0) / INCONSISTENCY_SCALE)
+        keep = w > 0
+        colours[idx[keep], k] = bilinear(views.images[k], x[keep], y[keep])
+        weights[idx[keep], k] = w[keep]
+    return colours, weights
+
+
+def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 16384) -> np.ndarray:
+    """Per point, the visible colour with the least weighted sum of distances to the other visible
+    colours: ``colours [m, n, 3]``, ``weights [m, n]`` -> ``[m, 3]``."""
+    out = np.zeros((len(colours), 3), np.float32)
+    for s in range(0, len(colours), chunk):
+        c, w = colours[s:s + chunk], weights[s:s + chunk]
+        distance = np.linalg.norm(c[:, :, None, :] - c[:, None, :, :], axis=-1)  # [m, n, n]
+        cost = (distance * w[:, None, :]).sum(-1)
+        cost[w <= 0] = np.inf
+        best = np.argmin(cost, axis=1)
+        out[s:s + chunk] = np.take_along_axis(c, best[:, None, None], axis=1)[:, 0]
+    return out
+
+
+def view_noise(residual: np.ndarray, visible: np.ndarray) -> np.ndarray:
+    """Each view's own noise ``[n]``: the median distance of its colours from the consensus where at least
+    three views (else two) see a point. It is capped at twice the median over all views, so that a view
+    that is wrong nearly everywhere cannot declare its errors to be its noise, and floored at NOISE_FLOOR."""
+    count = visible.sum(1)
+    pooled_sel = visible & (count >= 2)[:, None]
+    pooled = float(np.median(residual[pooled_sel])) if pooled_sel.any() else NOISE_FLOOR
+    cap = max(2.0 * pooled, NOISE_FLOOR)
+    noise = np.full(residual.shape[1], cap, np.float32)
+    for k in range(residual.shape[1]):
+        for least in (3, 2):
+            sel = visible[:, k] & (count >= least)
+            if sel.sum() >= 16:
+                noise[k] = float(np.median(residual[sel, k]))
+                break
+    return np.clip(noise, NOISE_FLOOR, cap)
+
+
+def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
+    """Fused colour ``[m, 3]`` and the final per-view weights ``[m, n]`` (normalised per point; zero rows
+    where no view sees the point)."""
+    if mode not in FUSIONS:
+        raise VAError(f"unknown fusion {mode!r}; use one of {', '.join(FUSIONS)}")
+    w = weights.astype(np.float32)
+    if mode == "robust" and colours.shape[1] > 1:
+        consensus = weighted_medoid(colours, w)
+        residual = np.linalg.norm(colours - consensus[:, None], axis=-1)
+        noise = view_noise(residual, w > 0)
+        for _ in range(ROBUST_ROUNDS):
+            w = weights / (1.0 + (residual / (OUTLIER_SCALE * noise)) ** 2)
+            total = np.maximum(w.sum(1, keepdims=True), 1e-12)
+            consensus = (w[:, :, None] * colours).sum(1) / total
+            residual = np.linalg.norm(colours - consensus[:, None], axis=-1)
+    total = w.sum(1, keepdims=True)
+    share = np.where(total > 1e-12, w / np.maximum(total, 1e-12), 0.0).astype(np.float32)
+    return (share[:, :, None] * colours).sum(1).astype(np.float32), share
+
+
+def dilate(image: np.ndarray, filled: np.ndarray, iterations: int = PADDING_TEXELS) -> np.ndarray:
+    """Grow the filled texels of ``image [S, S, 3]`` outwards by ``iterations`` texels (mean of the filled
+    3x3 neighbours), then give any still-empty texel the mean colour."""
+    image = np.where(filled[..., None], image, 0.0).astype(np.float32)
+    filled = filled.astype(np.float32)
+    for _ in range(iterations):
+        if filled.min() > 0:
+            break
+        total = cv2.boxFilter(image * filled[..., None], -1, (3, 3), normalize=False)
+        count = cv2.boxFilter(filled, -1, (3, 3), normalize=False)
+        grow = (filled == 0) & (count > 0)
+        image[grow] = total[grow] / count[grow][:, None]
+        filled[grow] = 1.0
+    if filled.min() == 0:
+        mean = image[filled > 0].mean(0) if filled.any() else np.full(3, 0.5, np.float32)
+        image[filled == 0] = mean
+    return image
+
+
+Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
+"""Colours ``[m, 3]`` of surface points ``[m, 3]`` with normals ``[m, 3]`` (e.g. the field's own colour)."""
+
+
+def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
+                 fallback: Optional[Fallback] = None, progress: bool = False):
+    """UV-unwrap ``mesh`` and bake its texture from ``views``: ``(TexturedMesh, BakeReport)``.
+
+    Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
+    check_texture_size(size)
+    if fusion not in FUSIONS:
+        raise VAError(f"unknown fusion {fusion!r}; use one of {', '.join(FUSIONS)}")
+    if len(np.asarray(mesh.faces)) == 0:
+        raise VAError("the mesh has no faces: nothing to texture")
+    seconds = {}
+    started = time.perf_counter()
+    vertices, faces, uv, _ = unwrap(mesh, size)
+    seconds["unwrap"] = time.perf_counter() - started
+    started = time.perf_counter()
+    face, bary = rasterize_uv(uv, faces, size)
+    covered = face >= 0
+    fid, b = face[covered], bary[covered]
+    corners = faces[fid]
+    points = np.einsum("mk,mkc->mc", b, vertices[corners]).astype(np.float32)
+    vertex_normals = smooth_vertex_normals(vertices, faces)
+    normals = np.einsum("mk,mkc->mc", b, vertex_normals[corners])
+    normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+    colours, weights = view_samples(vertices, faces, points, normals, views, progress=progress)
+    view_texels = [int(c) for c in (weights > 0).sum(0)]
+    blind = [k for k, c in enumerate(view_texels) if c == 0]
+    if blind:
+        raise VAError(f"training view{'s' if len(blind) > 1 else ''} {', '.join(map(str, blind))} see"
+                      f"{'' if len(blind) > 1 else 's'} no texel of the mesh: the mesh and the run's cameras "
+                      "do not fit together")
+    fused, share = fuse(colours, weights, fusion)
+    seen = share.sum(1) > 0
+    if fallback is not None and (~seen).any():
+        fused[~seen] = np.clip(fallback(points[~seen], normals[~seen]), 0.0, 1.0)
+        seen_or_filled = np.ones_like(seen)
+    else:
+        seen_or_filled = seen
+    seconds["bake"] = time.perf_counter() - started
+    image = np.zeros((size, size, 3), np.float32)
+    filled = np.zeros((size, size), bool)
+    rows, cols = np.nonzero(covered)
+    image[rows, cols] = fused
+    filled[rows[seen_or_filled], cols[seen_or_filled]] = True
+    image = dilate(image, filled)
+    maps = np.zeros((len(views), size, size), np.float32)
+    maps[:, rows, cols] = share.T
+    report = BakeReport(maps, int(covered.sum()), int(seen.sum()), view_texels, seconds)
+    return TexturedMesh(vertices, faces, uv, np.clip(image, 0.0, 1.0)), report
+
+
+def run_views(pipeline, inconsistency: bool = False, progress: bool = False) -> Views:
+    """The training views of a loaded run; with ``inconsistency`` (view-adaptive runs) also their
+    inconsistency maps (|own-branch render - canonical render|, half resolution)."""
+    dm = pipeline.datamanager
+    masks = None if dm.masks is None else dm.masks.cpu().numpy().reshape(dm.images.shape[:3]) > 0.5
+    maps = None
+    if inconsistency:
+        if not hasattr(pipeline.model.field, "branches_active") or not pipeline.model.field.branches_active():
+            raise VAError("--use-inconsistency needs a view-adaptive run (va-neus, va-ngp) whose branches trained")
+        from va_plugin.adaptive.diagnostics import inconsistency_maps
+
+        maps = np.stack([v["map"] for v in inconsistency_maps(pipeline, scale=0.5, progress=progress)])
+    return Views(dm.cameras.to(torch.device("cpu")), dm.images.cpu().numpy().astype(np.float32), masks, maps)
+
+
+def field_fallback(model) -> Fallback:
+    """The model's canonical surface colour as a fall-back for texels no view sees."""
+    device = next(model.parameters()).device
+
+    def colour(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+        out = []
+        was_training = model.training
+        model.eval()
+        try:
+            for p, n in zip(np.array_split(points, max(1, len(points) // 16384 + 1)),
+                            np.array_split(normals, max(1, len(normals) // 16384 + 1))):
+                if len(p):
+                    out.append(model.surface_color(torch.as_tensor(p, device=device),
+                                                   torch.as_tensor(n, dtype=torch.float32, device=device)).cpu())
+        finally:
+            model.train(was_training)
+        return torch.cat(out).numpy() if out else np.zeros((0, 3), np.float32)
+
+    return colour
+
+
+def check_texture_output(path: Path) -> None:
+    if Path(path).suffix.lower() not in TEXTURE_FORMATS:
+        raise VAError(f"a textured mesh is written as {' or '.join(TEXTURE_FORMATS)}, not {Path(path).suffix!r}")
+
+
+def write_textured_mesh(textured: TexturedMesh, path: Path) -> List[Path]:
+    """GLB with the texture embedded, or OBJ with its ``.mtl`` and ``.png`` beside it (same stem). Every file
+    is written under a temporary name first and renamed at the end, so a failure leaves nothing half-written."""
+    path = Path(path)
+    check_texture_output(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    mesh = textured.to_trimesh()
+    staged: Dict[Path, bytes] = {}
+    if path.suffix.lower() == ".glb":
+        staged[path] = mesh.export(file_type="glb")
+    else:
+        from trimesh.exchange.obj import export_obj
+
+        text, files = export_obj(mesh, include_normals=True, include_color=False, include_texture=True,
+                                 return_texture=True, mtl_name=path.stem + ".mtl")
+        for name, data in files.items():
+            if name.lower().endswith(".mtl"):
+                mtl = data.decode() if isinstance(data, bytes) else data
+                for other in files:
+                    if not other.lower().endswith(".mtl"):
+                        mtl = mtl.replace(other, path.stem + Path(other).suffix)
+                staged[path.with_suffix(".mtl")] = mtl.encode()
+            else:
+                staged[path.with_name(path.stem + Path(name).suffix)] = data
+        staged[path] = text.encode()
+    temporary = {}
+    try:
+        for target, data in staged.items():
+            tmp = target.with_name(target.name + ".tmp")
+            tmp.write_bytes(data)
+            temporary[target] = tmp
+        for target, tmp in temporary.items():
+            tmp.replace(target)
+    finally:
+        for tmp in temporary.values():
+            tmp.unlink(missing_ok=True)
+    return list(staged)
+
+
+def bake_picture(textured: TexturedMesh, report: BakeReport, path: Path, tile: int = 256) -> Path:
+    """The atlas next to each view's weight map (white: that view gives the texel its whole colour)."""
+    tiles = [cv2.resize(textured.image, (tile, tile), interpolation=cv2.INTER_AREA)]
+    for m in report.weight_maps:
+        small = cv2.resize(m, (tile, tile), interpolation=cv2.INTER_AREA)
+        tiles.append(np.repeat(small[..., None], 3, -1))
+    per_row = min(len(tiles), 5)
+    while len(tiles) % per_row:
+        tiles.append(np.ones_like(tiles[0]))
+    rows = [np.concatenate(tiles[i:i + per_row], 1) for i in range(0, len(tiles), per_row)]
+    write_image(Path(path), np.concatenate(rows, 0))
+    return Path(path)
+
+
+def write_bake_record(report: BakeReport, path: Path, extra: Optional[Dict[str, object]] = None) -> Path:
+    record = {**report.summary(), **(extra or {})}
+    Path(path).write_text(json.dumps(record, indent=2))
+    return Path(path)
+
+
+
+def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 1024, fusion: str = "robust",
+                     inconsistency: bool = False, progress: bool = True):
+    """Bake ``mesh`` from a loaded run's training views (field colour where none sees), write it to
+    ``output`` (GLB or OBJ+MTL+PNG) with ``<stem>_bake.png`` (atlas | per-view weight maps) and
+    ``<stem>_bake.json`` beside it; returns ``(TexturedMesh, BakeReport, written paths)``."""
+    output = Path(output)
+    check_texture_output(output)
+    views = run_views(pipeline, inconsistency=inconsistency, progress=progress)
+    textured, report = bake_texture(mesh, views, size=size, fusion=fusion, fallback=field_fallback(pipeline.model),
+                                    progress=progress)
+    written = write_textured_mesh(textured, output)
+    written.append(bake_picture(textured, report, output.with_name(output.stem + "_bake.png")))
+    written.append(write_bake_record(report, output.with_name(output.stem + "_bake.json"),
+                                     {"texture_size": size, "fusion": fusion, "inconsistency_maps": inconsistency}))
+    return textured, report, written
