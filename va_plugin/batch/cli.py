@@ -1,0 +1,160 @@
+"""``va-batch INPUTS --method METHOD --out OUT``: reconstruct every object of a folder, one job per object.
+
+Exit status: 0 when every object finished, 1 when any failed (each failure is one line in the manifest
+and the summary), 2 for a bad command (unknown method, option, missing INPUTS, ...), 130 on Ctrl-C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import sys
+import time
+from dataclasses import asdict
+from pathlib import Path
+from typing import Any, Dict, List, Optional
+
+from tqdm import tqdm
+
+from va_plugin.batch.engines import ENGINES, import_ray, run_local, run_ray
+from va_plugin.batch.inputs import find_objects
+from va_plugin.batch.job import Evaluation, ObjectJob
+from va_plugin.batch.manifest import Manifest
+from va_plugin.batch.summary import contact_sheet, write_summary
+from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
+from va_plugin.cli.train import add_object_options
+from va_plugin.config import apply_override
+from va_plugin.errors import ConfigError
+from va_plugin.registry import discover_methods
+
+EXIT_SOME_FAILED = 1
+
+
+def build_parser() -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="va-batch", description="Reconstruct every object of a folder: train, export the mesh and evaluate "
+        "against ground truth where the object has it, one job per object.",
+        epilog="Writes OUT/runs/NAME (one va-train run folder per object, with mesh.ply, thumbnail.png, eval.json "
+               "and batch.log), OUT/manifest.jsonl, OUT/summary.csv, OUT/summary.md and OUT/contact_sheet.png. "
+               "The options after --no-progress are va-train's and hold for every object.")
+    parser.add_argument("inputs", type=Path, help="a folder of generator outputs and/or scene folders, or a text "
+                        "file listing them (one path a line)")
+    parser.add_argument("--method", required=True, help="a registered method (va-train --help lists them)")
+    parser.add_argument("--out", type=Path, required=True, help="batch folder")
+    parser.add_argument("--engine", choices=ENGINES, default="local",
+                        help="local: worker processes on this machine (default); ray: one Ray task per object")
+    parser.add_argument("--workers", type=int, default=None,
+                        help="objects at once (local engine, or the local Ray instance); default: CPU cores / --threads")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads (Ray: CPUs) per object (default 1)")
+    parser.add_argument("--ray-address", default=None, help="join this Ray cluster ('auto': the one this machine "
+                        "belongs to); default: start a local Ray instance for the batch")
+    parser.add_argument("--gpus-per-job", type=float, default=0.0, help="Ray: GPUs per object (e.g. 1 or 0.5)")
+    parser.add_argument("--resume", action="store_true", help="continue a batch folder: skip the objects its "
+                        "manifest holds, continue interrupted ones from their checkpoints")
+    parser.add_argument("--retry-failed", action="store_true", help="with --resume: run failed objects again")
+    parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of each mesh")
+    parser.add_argument("--eval-image-scale", type=float, default=1.0, help="held-out views rendered at this scale")
+    parser.add_argument("--eval-max-views", type=int, default=None, help="evaluate at most this many held-out views")
+    parser.add_argument("--eval-samples", type=int, default=100_000,
+                        help="surface samples per mesh for the Chamfer distance and F-score")
+    parser.add_argument("--texture", action="store_true", help="textured meshes (once va-export mesh has them)")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_object_options(parser)
+    return parser
+
+
+def object_option_names() -> List[str]:
+    """The argparse names of va-train's per-object options, which every job passes on to va-train."""
+    probe = argparse.ArgumentParser(add_help=False)
+    add_object_options(probe)
+    return [action.dest for action in probe._actions]
+
+
+def check_options(args: argparse.Namespace) -> None:
+    """Refuse a bad command before any job starts (one line each)."""
+    methods = discover_methods()
+    if args.method not in methods:
+        raise ConfigError(f"unknown method {args.method!r}; known methods: {', '.join(methods)}")
+    config = methods[args.method].make_config(args.preset)
+    for assignment in args.overrides:
+        apply_override(config, assignment)
+    if args.threads < 1 or (args.workers is not None and args.workers < 1):
+        raise ConfigError("--workers and --threads must be at least 1")
+    if args.steps is not None and args.steps < 1:
+        raise ConfigError("--steps must be at least 1")
+    if args.mesh_resolution < 8 or args.eval_image_scale <= 0 or args.eval_samples < 1:
+        raise ConfigError("--mesh-resolution must be at least 8, --eval-image-scale positive and --eval-samples "
+                          "at least 1")
+    if args.engine != "ray" and (args.ray_address or args.gpus_per_job):
+        raise ConfigError("--ray-address and --gpus-per-job need --engine ray")
+    if args.retry_failed and not args.resume:
+        raise ConfigError("--retry-failed goes with --resume")
+    if args.texture:
+        raise ConfigError("--texture: textured export is not in va-export mesh yet; va-batch writes meshes with "
+                          "vertex colours (the hook is va_plugin/batch/job.py, export_mesh)")
+    if args.engine == "ray":
+        import_ray()
+
+
+def _result_line(record: Dict[str, Any]) -> str:
+    if record["status"] != "ok":
+        return f"failed {record['name']}: {record.get('error', '')}"
+    metrics = ", ".join(f"{k} {record[k]:.4g}" for k in ("cd", "iou", "psnr", "lpips") if record.get(k) is not None)
+    return f"ok     {record['name']} ({record['seconds']:.1f} s{'; ' + metrics if metrics else ''})"
+
+
+@friendly_errors
+def main(argv: Optional[List[str]] = None) -> int:
+    args = build_parser().parse_args(argv)
+    check_options(args)
+    objects = find_objects(args.inputs)
+    out = args.out.expanduser().resolve()
+    workers = args.workers or max(1, (os.cpu_count() or 1) // args.threads)
+    options = {name: getattr(args, name) for name in object_option_names()}
+    evaluation = Evaluation(args.mesh_resolution, args.eval_image_scale, args.eval_max_views, args.eval_samples)
+    manifest = Manifest(out, {"method": args.method, "options": options, "evaluation": asdict(evaluation),
+                              "texture": args.texture}, args.resume)
+    jobs = [ObjectJob(o.name, o.path, out / "runs" / o.name, args.method, options, args.threads, evaluation,
+                      args.texture) for o in objects if not manifest.finished(o.name, args.retry_failed)]
+    names = [o.name for o in objects]
+
+    def ordered() -> List[Dict[str, Any]]:
+        return [manifest.records[n] for n in names if n in manifest.records]
+
+    engine = (f"Ray ({args.ray_address or 'local instance'}), {args.threads} CPU(s) a job" if args.engine == "ray"
+              else f"{min(workers, max(1, len(jobs)))} worker(s) x {args.threads} thread(s)")
+    print(f"va-batch: {len(objects)} objects, {len(objects) - len(jobs)} already done, {len(jobs)} to run on "
+          f"{engine}; {args.method} -> {out}", file=sys.stderr)
+    bar = tqdm(total=len(objects), initial=len(objects) - len(jobs), unit="object", desc="va-batch",
+               disable=args.no_progress, dynamic_ncols=True)
+
+    def on_done(record: Dict[str, Any]) -> None:
+        manifest.add(record)
+        write_summary(out, ordered())
+        bar.update(1)
+        bar.set_postfix(failed=sum(r["status"] != "ok" for r in manifest.records.values()))
+        tqdm.write(_result_line(record), file=sys.stderr)
+
+    started = time.perf_counter()
+    try:
+        if args.engine == "ray":
+            run_ray(jobs, on_done, args.ray_address, workers, args.threads, args.gpus_per_job)
+        else:
+            run_local(jobs, workers, on_done)
+    except KeyboardInterrupt:
+        bar.close()
+        print(f"interrupted: {len(ordered())} of {len(objects)} objects done; continue with --resume",
+              file=sys.stderr)
+        return EXIT_INTERRUPTED
+    bar.close()
+    records = ordered()
+    write_summary(out, records)
+    sheet = contact_sheet(out, records)
+    failed = [r for r in records if r["status"] != "ok"]
+    print(f"{len(records) - len(failed)} ok, {len(failed)} failed; {time.perf_counter() - started:.1f} s for "
+          f"{len(jobs)} job(s); {out / 'summary.md'}" + (f", {sheet}" if sheet else ""))
+    return EXIT_SOME_FAILED if failed else 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

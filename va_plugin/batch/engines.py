@@ -1,0 +1,144 @@
+"""Who runs a batch's jobs. Both engines run the same function, :func:`va_plugin.batch.job.run_object`,
+and hand each finished record to ``on_done`` in the main process, which alone writes the manifest.
+
+- ``local`` (embedded): with one worker the jobs run one after another in this process; with N a pool of
+  N ``spawn`` worker processes (nothing of this process's torch state is forked), each job setting its
+  own torch threads. Workers ignore Ctrl-C (this process stops them) and end themselves when this process
+  is gone, so a killed batch leaves nothing running that a resumed batch would meet in its run folders.
+  A worker that dies (out of memory, killed) fails the objects it and its neighbours were running (the
+  pool cannot tell them apart); the other objects go on in a fresh pool.
+- ``ray``: one Ray task per object with ``num_cpus`` = threads per job (and ``num_gpus`` when asked);
+  ``address`` joins a running cluster (``auto``: the one this machine belongs to), none starts a local
+  instance with ``workers x threads`` CPUs for the batch's duration.
+"""
+
+from __future__ import annotations
+
+import os
+import signal
+import threading
+import time
+from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
+from multiprocessing import get_context
+from typing import Any, Callable, Dict, List, Optional, Sequence
+
+from va_plugin.batch.job import ObjectJob, failed_record, run_object
+from va_plugin.errors import ConfigError
+
+OnDone = Callable[[Dict[str, Any]], None]
+ENGINES = ("local", "ray")
+PARENT_POLL_SECONDS = 1.0
+
+
+# -- local ----------------------------------------------------------------------------------------------
+def _watch_parent(parent: int) -> None:
+    while os.getppid() == parent:
+        time.sleep(PARENT_POLL_SECONDS)
+    os._exit(1)  # the batch is gone: stop before a resumed batch trains the same run folder
+
+
+def _start_worker(parent: int, started) -> None:
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+    global _STARTED
+    _STARTED = started
+
+
+_STARTED = None
+
+
+def _run_in_worker(job: ObjectJob) -> Dict[str, Any]:
+    _STARTED.put(job.name)
+    return run_object(job)
+
+
+def run_local(jobs: Sequence[ObjectJob], workers: int, on_done: OnDone) -> None:
+    """Run ``jobs`` in this process (``workers`` 1) or in a pool of ``workers`` processes."""
+    if workers <= 1:
+        for job in jobs:
+            on_done(run_object(job))
+        return
+    remaining: List[ObjectJob] = list(jobs)
+    while remaining:
+        remaining = _run_pool(remaining, workers, on_done)
+
+
+def _run_pool(jobs: List[ObjectJob], workers: int, on_done: OnDone) -> List[ObjectJob]:
+    """Run ``jobs`` in one pool; the jobs left to run when a worker died (none when all finished)."""
+    context = get_context("spawn")
+    started = context.Queue()
+    pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
+                               initializer=_start_worker, initargs=(os.getpid(), started))
+    futures = {pool.submit(_run_in_worker, job): job for job in jobs}
+    finished = set()
+    try:
+        pending = set(futures)
+        while pending:
+            done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            for future in done:
+                try:
+                    record = future.result()
+                except BrokenProcessPool:
+                    continue
+                finished.add(futures[future].name)
+                on_done(record)
+        lost = [job for job in jobs if job.name not in finished]
+        if not lost:
+            return []
+        in_flight = set()
+        while not started.empty():
+            in_flight.add(started.get())
+        in_flight -= finished
+        for job in lost:
+            if job.name in in_flight:
+                on_done(failed_record(job, "the worker process running it died (out of memory, or killed); "
+                                           "rerun with --resume --retry-failed"))
+        return [job for job in lost if job.name not in in_flight]
+    except BaseException:
+        for future in futures:
+            future.cancel()
+        for process in list(getattr(pool, "_processes", {}).values()):
+            process.terminate()  # in-flight objects resume from their checkpoints with --resume
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
+
+
+# -- ray ------------------------------------------------------------------------------------------------
+def import_ray():
+    try:
+        import ray
+    except ImportError:
+        raise ConfigError("--engine ray needs Ray: pip install 'va-plugin[ray]' (or pip install ray)") from None
+    return ray
+
+
+def run_ray(jobs: Sequence[ObjectJob], on_done: OnDone, address: Optional[str] = None, workers: int = 1,
+            threads: int = 1, gpus: float = 0.0) -> None:
+    """One Ray task per job on the cluster at ``address``, or on a local instance started here."""
+    ray = import_ray()
+    options = {"include_dashboard": False, "configure_logging": False, "log_to_driver": False}
+    if address:
+        ray.init(address=address, **options)
+    else:
+        ray.init(num_cpus=workers * threads, num_gpus=None if gpus else 0, **options)
+    pending: Dict[Any, ObjectJob] = {}
+    try:
+        task = ray.remote(run_object).options(num_cpus=threads, num_gpus=gpus, max_retries=1)
+        pending.update({task.remote(job): job for job in jobs})
+        while pending:
+            done, _ = ray.wait(list(pending), num_returns=1)
+            for ref in done:
+                job = pending.pop(ref)
+                try:
+                    record = ray.get(ref)
+                except Exception as exc:  # the task's worker or node died: record it, go on
+                    record = failed_record(job, f"Ray: {type(exc).__name__}: {str(exc).strip().splitlines()[0]}")
+                on_done(record)
+    except BaseException:
+        for ref in pending:
+            ray.cancel(ref, force=True)
+        raise
+    finally:
+        ray.shutdown()

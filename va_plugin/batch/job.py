@@ -1,0 +1,168 @@
+"""The job of one object: what ``va-train``, ``va-export mesh`` and ``va-eval`` do by hand, in one call.
+
+:func:`run_object` is the one job function of every engine (the engines only decide where and when it
+runs). It trains the object's run folder (continuing from its newest checkpoint when a killed batch left
+one), loads the finished run back as ``va-export`` and ``va-eval`` do, writes ``mesh.ply`` and a small
+grey picture of it (``thumbnail.png``, for the contact sheet), and evaluates the run when the object has
+ground truth. It never raises for a bad object: the record says ``failed`` with the error's one line, and
+the traceback goes to the object's ``batch.log``, which also takes everything the job prints.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+import traceback
+from contextlib import redirect_stderr, redirect_stdout
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Dict, Optional, Tuple
+
+LOG_FILE = "batch.log"
+MESH_FILE = "mesh.ply"
+THUMBNAIL_FILE = "thumbnail.png"
+METRICS = ("cd", "iou", "fscore", "psnr", "ssim", "lpips")
+
+
+@dataclass(frozen=True)
+class Evaluation:
+    """How an object with ground truth is evaluated, and how its mesh is extracted."""
+
+    mesh_resolution: int = 128
+    image_scale: float = 1.0
+    max_views: Optional[int] = None
+    n_samples: int = 100_000
+    """Surface samples per mesh for the Chamfer distance and F-score (va-eval's 100k by default)."""
+    thumbnail_views: int = 2
+    thumbnail_resolution: int = 96
+
+
+@dataclass(frozen=True)
+class ObjectJob:
+    """Everything one object's job needs (plain values: it travels to worker processes and Ray nodes)."""
+
+    name: str
+    data: Path
+    run_dir: Path
+    method: str
+    options: Dict[str, Any]
+    """va-train's per-object options (``add_object_options``), by their argparse names."""
+    threads: int = 1
+    evaluation: Evaluation = field(default_factory=Evaluation)
+    texture: bool = False
+
+
+def _one_line(exc: BaseException) -> str:
+    from va_plugin.errors import VAError
+
+    text = str(exc).strip().splitlines()
+    text = text[0] if text else ""
+    return text if isinstance(exc, VAError) else f"{type(exc).__name__}: {text}".rstrip(": ")
+
+
+def failed_record(job: ObjectJob, error: str, seconds: float = 0.0) -> Dict[str, Any]:
+    """The record of an object whose job could not report itself (its worker died, the engine failed)."""
+    return {"name": job.name, "input": str(job.data), "run_dir": str(job.run_dir), "status": "failed",
+            "error": error, "seconds": round(seconds, 2)}
+
+
+def run_object(job: ObjectJob) -> Dict[str, Any]:
+    """Train, export and evaluate one object; its manifest record (status ``ok`` or ``failed``)."""
+    started = time.perf_counter()
+    record: Dict[str, Any] = {"name": job.name, "input": str(job.data), "run_dir": str(job.run_dir)}
+    Path(job.run_dir).mkdir(parents=True, exist_ok=True)
+    with open(Path(job.run_dir) / LOG_FILE, "a", encoding="utf-8") as log, redirect_stdout(log), \
+            redirect_stderr(log):
+        print(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} {job.method} on {job.data} (pid {os.getpid()})")
+        try:
+            record.update(_reconstruct(job))
+            record["status"] = "ok"
+        except Exception as exc:  # a bad object is recorded, the batch goes on
+            traceback.print_exc()
+            record.update(status="failed", error=_one_line(exc))
+    record["seconds"] = round(time.perf_counter() - started, 2)
+    return record
+
+
+def train_config(job: ObjectJob):
+    """The object's trainer config, made from its options exactly as va-train makes it."""
+    from va_plugin.cli.train import make_config
+    from va_plugin.registry import discover_methods
+
+    args = argparse.Namespace(method=job.method, data=Path(job.data), output_dir=Path(job.run_dir), masks=None,
+                              no_progress=True, default_scene_resolution=None, **job.options)
+    config = make_config(args, discover_methods())
+    config.num_threads = job.threads
+    return config
+
+
+def _reconstruct(job: ObjectJob) -> Dict[str, Any]:
+    import torch
+
+    from va_plugin.cli.run import load_run
+
+    torch.set_num_threads(job.threads)
+    config = train_config(job)
+    trainer = config.setup()
+    resumed_from = trainer.step if trainer.resume() else None
+    try:
+        trainer.train()
+    except KeyboardInterrupt:  # Ctrl-C in a batch run in this process: --resume continues from here
+        trainer.save_checkpoint()
+        raise
+    del trainer
+    # what va-export and va-eval see: the run as its last checkpoint holds it
+    pipeline, state = load_run(Path(job.run_dir), device=job.options.get("device"))
+    mesh, mesh_path = export_mesh(pipeline, job)
+    out: Dict[str, Any] = {"steps": int(state["step"]), "train_seconds": round(float(state["train_seconds"]), 2),
+                           "mesh": str(mesh_path), "resumed_from_step": resumed_from}
+    out["thumbnail"] = str(write_thumbnail(mesh, job))
+    out.update(evaluate(pipeline, state, mesh, job))
+    return out
+
+
+def export_mesh(pipeline, job: ObjectJob) -> Tuple[Any, Path]:
+    """The run's mesh, written to ``RUN/mesh.ply`` (vertex colours from the canonical colour path).
+
+    Textured meshes (``--texture``) hook in here once ``va-export mesh`` can write them; until then the
+    command line refuses the flag before any job starts."""
+    from va_plugin.export.mesh import extract_mesh, write_mesh
+
+    if job.texture:
+        raise NotImplementedError("textured export is not available in this version")
+    mesh = extract_mesh(pipeline.model, resolution=job.evaluation.mesh_resolution)
+    return mesh, write_mesh(mesh, Path(job.run_dir) / MESH_FILE)
+
+
+def write_thumbnail(mesh, job: ObjectJob) -> Path:
+    """Grey shaded views of the mesh side by side (geometry only), for the contact sheet."""
+    from va_plugin.data.images import write_image
+    from va_plugin.export.render import mesh_views
+
+    path = Path(job.run_dir) / THUMBNAIL_FILE
+    write_image(path, mesh_views([mesh], job.evaluation.thumbnail_views, job.evaluation.thumbnail_resolution))
+    return path
+
+
+def evaluate(pipeline, state: Dict[str, Any], mesh, job: ObjectJob) -> Dict[str, Any]:
+    """va-eval's metrics when the object has ground truth, also written to ``RUN/eval.json``; ``{}`` when
+    it has none. Ground truth is a scene folder's: its held-out views and the mesh its scene.json names.
+    A generator output's other views are not ground truth (they are generated too), so those objects
+    get no metrics."""
+    from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+    from va_plugin.eval.evaluate import evaluate_run, ground_truth_mesh_path
+
+    scene = isinstance(state["config_object"].pipeline.datamanager.dataparser, TransformsDataParserConfig)
+    if not scene or (pipeline.datamanager.test is None and ground_truth_mesh_path(pipeline) is None):
+        return {}
+    settings = job.evaluation
+    result = evaluate_run(pipeline, state, None, settings.mesh_resolution, settings.image_scale,
+                          settings.max_views, settings.n_samples, progress=False, mesh=mesh)
+    path = Path(job.run_dir) / "eval.json"
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(result, indent=2))
+    tmp.replace(path)
+    return {name: result[name] for name in METRICS if name in result}
