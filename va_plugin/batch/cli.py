@@ -34,8 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(
         prog="va-batch", description="Reconstruct every object of a folder: train, export the mesh and evaluate "
         "against ground truth where the object has it, one job per object.",
-        epilog="Writes OUT/runs/NAME (one va-train run folder per object, with mesh.ply, thumbnail.png, eval.json "
-               "and batch.log), OUT/manifest.jsonl, OUT/summary.csv, OUT/summary.md and OUT/contact_sheet.png. "
+        epilog="Writes OUT/runs/NAME (one va-train run folder per object, with mesh.ply, mesh.glb (textured), "
+               "thumbnail.png, eval.json and batch.log), OUT/manifest.jsonl, OUT/summary.csv, OUT/summary.md and OUT/contact_sheet.png. "
                "The options after --no-progress are va-train's and hold for every object.")
     parser.add_argument("inputs", type=Path, help="a folder of generator outputs and/or scene folders, or a text "
                         "file listing them (one path a line)")
@@ -57,7 +57,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-max-views", type=int, default=None, help="evaluate at most this many held-out views")
     parser.add_argument("--eval-samples", type=int, default=100_000,
                         help="surface samples per mesh for the Chamfer distance and F-score")
-    parser.add_argument("--texture", action="store_true", help="textured meshes (once va-export mesh has them)")
+    parser.add_argument("--no-texture", action="store_true",
+                        help="skip the textured mesh (RUN/mesh.glb, va-export mesh --texture); mesh.ply is always written")
+    parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
+    parser.add_argument("--fusion", choices=("robust", "mean"), default="robust",
+                        help="how the texture fuses disagreeing views (as va-export mesh --fusion)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_object_options(parser)
     return parser
@@ -89,9 +93,10 @@ def check_options(args: argparse.Namespace) -> None:
         raise ConfigError("--ray-address and --gpus-per-job need --engine ray")
     if args.retry_failed and not args.resume:
         raise ConfigError("--retry-failed goes with --resume")
-    if args.texture:
-        raise ConfigError("--texture: textured export is not in va-export mesh yet; va-batch writes meshes with "
-                          "vertex colours (the hook is va_plugin/batch/job.py, export_mesh)")
+    if not args.no_texture:
+        from va_plugin.export.texture import check_texture_size
+
+        check_texture_size(args.texture_size)
     if args.engine == "ray":
         import_ray()
 
@@ -112,10 +117,11 @@ def main(argv: Optional[List[str]] = None) -> int:
     workers = args.workers or max(1, (os.cpu_count() or 1) // args.threads)
     options = {name: getattr(args, name) for name in object_option_names()}
     evaluation = Evaluation(args.mesh_resolution, args.eval_image_scale, args.eval_max_views, args.eval_samples)
+    texture_size = 0 if args.no_texture else args.texture_size
     manifest = Manifest(out, {"method": args.method, "options": options, "evaluation": asdict(evaluation),
-                              "texture": args.texture}, args.resume)
+                              "texture_size": texture_size, "fusion": args.fusion}, args.resume)
     jobs = [ObjectJob(o.name, o.path, out / "runs" / o.name, args.method, options, args.threads, evaluation,
-                      args.texture) for o in objects if not manifest.finished(o.name, args.retry_failed)]
+                      texture_size, args.fusion) for o in objects if not manifest.finished(o.name, args.retry_failed)]
     names = [o.name for o in objects]
 
     def ordered() -> List[Dict[str, Any]]:

@@ -2,9 +2,9 @@
 
 :func:`run_object` is the one job function of every engine (the engines only decide where and when it
 runs). It trains the object's run folder (continuing from its newest checkpoint when a killed batch left
-one), loads the finished run back as ``va-export`` and ``va-eval`` do, writes ``mesh.ply`` and a small
-grey picture of it (``thumbnail.png``, for the contact sheet), and evaluates the run when the object has
-ground truth. It never raises for a bad object: the record says ``failed`` with the error's one line, and
+one), loads the finished run back as ``va-export`` and ``va-eval`` do, writes ``mesh.ply`` (vertex
+colours), the textured ``mesh.glb`` (unless the batch turned textures off) and a small grey picture of the
+mesh (``thumbnail.png``, for the contact sheet), and evaluates the run when the object has ground truth. It never raises for a bad object: the record says ``failed`` with the error's one line, and
 the traceback goes to the object's ``batch.log``, which also takes everything the job prints.
 """
 
@@ -23,6 +23,7 @@ from typing import Any, Dict, Optional, Tuple
 
 LOG_FILE = "batch.log"
 MESH_FILE = "mesh.ply"
+TEXTURED_MESH_FILE = "mesh.glb"
 THUMBNAIL_FILE = "thumbnail.png"
 METRICS = ("cd", "iou", "fscore", "psnr", "ssim", "lpips")
 
@@ -52,7 +53,10 @@ class ObjectJob:
     """va-train's per-object options (``add_object_options``), by their argparse names."""
     threads: int = 1
     evaluation: Evaluation = field(default_factory=Evaluation)
-    texture: bool = False
+    texture_size: int = 0
+    """Side of the baked texture (``va-export mesh --texture``); 0: vertex colours only."""
+    fusion: str = "robust"
+    """How the texture fuses disagreeing views (``va-export mesh --fusion``)."""
 
 
 def _one_line(exc: BaseException) -> str:
@@ -116,25 +120,29 @@ def _reconstruct(job: ObjectJob) -> Dict[str, Any]:
     del trainer
     # what va-export and va-eval see: the run as its last checkpoint holds it
     pipeline, state = load_run(Path(job.run_dir), device=job.options.get("device"))
-    mesh, mesh_path = export_mesh(pipeline, job)
+    mesh, paths = export_mesh(pipeline, job)
     out: Dict[str, Any] = {"steps": int(state["step"]), "train_seconds": round(float(state["train_seconds"]), 2),
-                           "mesh": str(mesh_path), "resumed_from_step": resumed_from}
+                           **paths, "resumed_from_step": resumed_from}
     out["thumbnail"] = str(write_thumbnail(mesh, job))
     out.update(evaluate(pipeline, state, mesh, job))
     return out
 
 
-def export_mesh(pipeline, job: ObjectJob) -> Tuple[Any, Path]:
-    """The run's mesh, written to ``RUN/mesh.ply`` (vertex colours from the canonical colour path).
-
-    Textured meshes (``--texture``) hook in here once ``va-export mesh`` can write them; until then the
-    command line refuses the flag before any job starts."""
+def export_mesh(pipeline, job: ObjectJob) -> Tuple[Any, Dict[str, str]]:
+    """The run's mesh as ``va-export mesh`` writes it: ``RUN/mesh.ply`` with vertex colours from the
+    canonical colour path, and with a texture size also ``RUN/mesh.glb`` (``va-export mesh --texture``:
+    UV atlas, texture baked from the input views; ``mesh_bake.png`` and ``mesh_bake.json`` beside it)."""
     from va_plugin.export.mesh import extract_mesh, write_mesh
 
-    if job.texture:
-        raise NotImplementedError("textured export is not available in this version")
     mesh = extract_mesh(pipeline.model, resolution=job.evaluation.mesh_resolution)
-    return mesh, write_mesh(mesh, Path(job.run_dir) / MESH_FILE)
+    paths = {"mesh": str(write_mesh(mesh, Path(job.run_dir) / MESH_FILE))}
+    if job.texture_size:
+        from va_plugin.export.texture import texture_run_mesh
+
+        _, _, written = texture_run_mesh(pipeline, mesh, Path(job.run_dir) / TEXTURED_MESH_FILE, job.texture_size,
+                                         job.fusion, progress=False)
+        paths["textured_mesh"] = str(written[0])
+    return mesh, paths
 
 
 def write_thumbnail(mesh, job: ObjectJob) -> Path:
