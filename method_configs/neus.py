@@ -1,10 +1,17 @@
-"""The ``neus`` method: NeuS with a positional-encoding SDF network, sized for 2 CPU cores."""
+"""The ``neus`` method: NeuS on a hash-grid SDF field, sized for 2 CPU cores.
+
+The default field is the hash-grid SDF (:class:`HashSDFFieldConfig`): a multiresolution hash encoding
+with levels opening coarse to fine, a one-layer SDF MLP and a view-independent colour MLP. The
+positional-encoding network that was the default before (a 4 x 128 SDF MLP, 500 steps) is the ``mlp``
+preset; ``accurate`` is the paper's 4 x 256 network.
+"""
 
 from __future__ import annotations
 
 from va_plugin.data.datamanager import DataManagerConfig
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.engine.trainer import TrainerConfig
+from va_plugin.fields.hash_sdf_field import HashSDFFieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.models.neus import NeuSModelConfig
 from va_plugin.pipelines.base import PipelineConfig
@@ -12,23 +19,30 @@ from va_plugin.registry import MethodSpecification, Preset
 
 
 def neus_config() -> TrainerConfig:
-    """The default NeuS run: about 4 minutes of training on 2 CPU cores for a 4-view object."""
+    """The default NeuS run on a 4-view object (budget from benchmarks/run_speed.py's time-to-accuracy
+    curves on the GSO objects; benchmarks/RESULTS.md, "Hash-grid SDF backbone")."""
     return TrainerConfig(
         method_name="neus",
         pipeline=PipelineConfig(
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
-            model=NeuSModelConfig(field=SDFFieldConfig(sdf_width=128, sdf_layers=4, color_width=128,
-                                                       color_layers=2, geo_feature_dim=64),
-                                  n_samples=32, n_importance=32, up_sample_steps=2),
+            model=NeuSModelConfig(field=HashSDFFieldConfig(), n_samples=32, n_importance=32, up_sample_steps=2),
         ),
-        optimizers={"fields": OptimizerConfig(lr=2e-3)},
+        optimizers={"fields": OptimizerConfig(lr=1e-2)},
         scheduler=SchedulerConfig(warmup_steps=100, final_fraction=0.05),
-        max_steps=500,
+        max_steps=1000,
     )
 
 
+def _mlp(config: TrainerConfig) -> None:
+    """The positional-encoding NeuS that was the default until 2026-11-24."""
+    config.pipeline.model.field = SDFFieldConfig(sdf_width=128, sdf_layers=4, color_width=128, color_layers=2,
+                                                 geo_feature_dim=64)
+    config.optimizers["fields"].lr = 2e-3
+    config.max_steps = 500
+
+
 def _fast(config: TrainerConfig) -> None:
-    config.max_steps = 250
+    config.max_steps = config.max_steps // 2
     config.pipeline.datamanager.rays_per_batch = 256
     config.pipeline.model.n_samples = 24
     config.pipeline.model.n_importance = 24
@@ -36,10 +50,10 @@ def _fast(config: TrainerConfig) -> None:
 
 def _accurate(config: TrainerConfig) -> None:
     """The paper's network (4 x 256 shared MLP) with more samples and steps."""
+    config.pipeline.model.field = SDFFieldConfig(sdf_width=256, sdf_layers=4, color_width=128, color_layers=2,
+                                                 geo_feature_dim=256)
     config.max_steps = 6000
     config.pipeline.datamanager.rays_per_batch = 1024
-    config.pipeline.model.field.sdf_width = 256
-    config.pipeline.model.field.geo_feature_dim = 256
     config.pipeline.model.n_samples = 64
     config.pipeline.model.n_importance = 64
     config.pipeline.model.up_sample_steps = 4
@@ -48,9 +62,11 @@ def _accurate(config: TrainerConfig) -> None:
 
 neus = MethodSpecification(
     config=neus_config(),
-    description="NeuS surface reconstruction (SDF field, up-sampling, eikonal + mask losses)",
+    description="NeuS surface reconstruction (hash-grid SDF field, up-sampling, eikonal + mask losses)",
     presets={
-        "fast": Preset("fewer rays, samples and steps: a rough mesh quickly", _fast),
+        "fast": Preset("half the steps, fewer rays and samples: a rough mesh quickly", _fast),
+        "mlp": Preset("the positional-encoding SDF network (4x128) that was the default before the hash grid, "
+                      "500 steps", _mlp),
         "accurate": Preset("the paper's 4x256 network, 128 samples per ray, 6000 steps", _accurate),
     },
 )

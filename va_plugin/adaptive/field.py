@@ -156,6 +156,9 @@ class ViewAdaptiveField(Field):
         """Share of the last training batch's samples that took the fused path (phase 3)."""
 
     # -- phases (set by the trainer's callback) ---------------------------------------------------
+    def update_step(self, step: int, max_steps: int) -> None:
+        self.base.update_step(step, max_steps)
+
     def set_phase(self, phase: int) -> None:
         self.phase.fill_(int(phase))
         self._phase = int(phase)

@@ -88,6 +88,13 @@ PRESETS: Dict[str, BenchPreset] = {
         scenes=("mug", "knot", "chair"), axis_scenes=("mug",), method_preset="fast",
         evaluation=EvalSettings(image_scale=0.25, max_views=4, mesh_resolution=96, n_samples=100_000),
         curve_points=3),
+    "gso10": BenchPreset(
+        name="gso10",
+        description="the 10 Google Scanned Objects under --data-root, 4 views at 256 px, each method's default "
+                    "budget, every held-out view at full size (benchmarks/run_backbone.py; hours)",
+        scenes=("gso",), axis_scenes=("gso",),
+        evaluation=EvalSettings(image_scale=1.0, max_views=None, mesh_resolution=128, n_samples=100_000),
+        curve_points=4),
     "full": BenchPreset(
         name="full",
         description="every procedural object and every GSO object under --data-root, each method's default "

@@ -54,6 +54,10 @@ class RowSpec:
     variant: str = ""
     """Label of the row in its table (default: "Original NeuS", "View-adaptive NeuS", ...)."""
     overrides: Tuple[str, ...] = ()
+    method_preset: Optional[str] = None
+    """Registry preset of this row's method (default: the benchmark preset's ``method_preset``)."""
+    steps: Optional[int] = None
+    """Step budget of this row (default: the benchmark preset's, else the method's)."""
 
     @property
     def method(self) -> str:
@@ -74,10 +78,12 @@ class RowSpec:
 def row_config(row: RowSpec, preset: BenchPreset, scene_dir: Path, run_dir: Path, seed: int = 42,
                device: str = "auto"):
     """The trainer config of a row (see the module docstring)."""
-    config = get_method(row.method).make_config(preset.method_preset)
+    config = get_method(row.method).make_config(row.method_preset or preset.method_preset)
     config.pipeline.datamanager.dataparser.data = Path(scene_dir)
     config.output_dir = Path(run_dir)
-    if row.backbone in preset.steps:
+    if row.steps is not None:
+        config.max_steps = row.steps
+    elif row.backbone in preset.steps:
         config.max_steps = preset.steps[row.backbone]
     config.seed = seed
     config.device = device
@@ -191,9 +197,11 @@ def run_row(row: RowSpec, config, scene_dir: Path, evaluation: EvalSettings, row
 
 def run_steps(row: RowSpec, preset: BenchPreset) -> int:
     """The step budget a row will train for (for progress estimates)."""
+    if row.steps is not None:
+        return row.steps
     if row.backbone in preset.steps:
         return preset.steps[row.backbone]
-    return int(get_method(row.method).make_config(preset.method_preset).max_steps)
+    return int(get_method(row.method).make_config(row.method_preset or preset.method_preset).max_steps)
 
 
 def scene_of(source: str, preset: BenchPreset, seed: int, level: Optional[int] = None,

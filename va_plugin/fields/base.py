@@ -22,6 +22,35 @@ class FieldConfig(InstantiateConfig):
     """Options every field has."""
 
 
+@dataclass
+class HashGridFieldConfig(FieldConfig):
+    """Options of fields built on a multiresolution hash grid (the density field, the hash SDF field)."""
+
+    n_levels: int = 12
+    """Levels of the hash grid."""
+    features_per_level: int = 2
+    """Features stored per grid vertex."""
+    log2_hashmap_size: int = 17
+    """log2 of the most table entries a level may have."""
+    base_resolution: int = 16
+    """Cells per axis of the coarsest level."""
+    max_resolution: int = 512
+    """Cells per axis of the finest level."""
+    bound: float = 1.0
+    """The grid covers [-bound, bound]^3; it must hold the scene's bounding sphere."""
+
+    def make_encoding(self):
+        """The field's :class:`HashGridEncoding` (a one-line error for a bound that is not positive)."""
+        from va_plugin.errors import ConfigError
+        from va_plugin.fields.encodings.hash_grid import HashGridEncoding
+
+        if self.bound <= 0:
+            raise ConfigError(f"field.bound must be positive, got {self.bound}")
+        return HashGridEncoding(n_levels=self.n_levels, n_features_per_level=self.features_per_level,
+                                log2_hashmap_size=self.log2_hashmap_size, base_resolution=self.base_resolution,
+                                max_resolution=self.max_resolution, bound=self.bound)
+
+
 class Field(nn.Module):
     """Base class of geometry + colour fields.
 
@@ -51,6 +80,10 @@ class Field(nn.Module):
         belongs to (``ray_indices``, ``[...]``) are ignored by plain fields; a wrapper may use them to
         spend work only where a sample is visible, or only on a ray's heaviest samples."""
         return {"rgb": self.decode_color(self.color_features(positions, directions, normals, geo_features))}
+
+    def update_step(self, step: int, max_steps: int) -> None:
+        """Schedules of the field (e.g. coarse-to-fine grid levels); the model calls it before each
+        training step and when a run is loaded. Plain fields have none."""
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:
         """Parameters keyed like the optimizer config."""

@@ -9,8 +9,7 @@ import torch
 from torch import nn
 
 from va_plugin.errors import ConfigError
-from va_plugin.fields.base import MLP, Field, FieldConfig
-from va_plugin.fields.encodings.hash_grid import HashGridEncoding
+from va_plugin.fields.base import MLP, Field, HashGridFieldConfig
 from va_plugin.fields.encodings.positional import PositionalEncoding
 
 TRUNC_EXP_MAX = 15.0
@@ -39,22 +38,10 @@ def trunc_exp(x: torch.Tensor) -> torch.Tensor:
 
 
 @dataclass
-class DensityFieldConfig(FieldConfig):
+class DensityFieldConfig(HashGridFieldConfig):
     """An NGP field: hash grid -> density MLP -> (raw density, feature); colour MLP on (feature, gamma(d))."""
 
     _target: Type = field(default_factory=lambda: DensityField)
-    n_levels: int = 12
-    """Levels of the hash grid."""
-    features_per_level: int = 2
-    """Features stored per grid vertex."""
-    log2_hashmap_size: int = 17
-    """log2 of the most table entries a level may have."""
-    base_resolution: int = 16
-    """Cells per axis of the coarsest level."""
-    max_resolution: int = 512
-    """Cells per axis of the finest level."""
-    bound: float = 1.0
-    """The grid covers [-bound, bound]^3; it must hold the scene's bounding sphere."""
     hidden_width: int = 64
     """Hidden width of the density MLP."""
     hidden_layers: int = 1
@@ -62,7 +49,8 @@ class DensityFieldConfig(FieldConfig):
     geo_feature_dim: int = 15
     """Width of the geometry feature passed to the colour MLP (InstantNGP: 15)."""
     direction_frequencies: int = 4
-    """Frequency bands of gamma(d) in the colour MLP."""
+    """Frequency bands of gamma(d) in the colour MLP; -1 leaves the direction out (view-independent
+    colour, which few input views cannot mislead)."""
     color_width: int = 64
     """Hidden width of the colour MLP; f_shared has this width."""
     color_layers: int = 2
@@ -74,18 +62,17 @@ class DensityField(Field):
 
     def __init__(self, config: DensityFieldConfig) -> None:
         super().__init__()
-        if config.bound <= 0:
-            raise ConfigError(f"field.bound must be positive, got {config.bound}")
         self.config = config
         self.bound = float(config.bound)
-        self.encoding = HashGridEncoding(n_levels=config.n_levels, n_features_per_level=config.features_per_level,
-                                         log2_hashmap_size=config.log2_hashmap_size,
-                                         base_resolution=config.base_resolution,
-                                         max_resolution=config.max_resolution, bound=config.bound)
+        self.encoding = config.make_encoding()
         self.density_net = MLP(self.encoding.output_dim, config.hidden_width, config.hidden_layers,
                                1 + config.geo_feature_dim)
-        self.direction_encoding = PositionalEncoding(3, config.direction_frequencies)
-        self.color_net = MLP(self.direction_encoding.output_dim + config.geo_feature_dim, config.color_width,
+        if config.direction_frequencies < -1:
+            raise ConfigError("field.direction_frequencies must be -1 (no direction), 0 or a positive count")
+        self.direction_encoding = (PositionalEncoding(3, config.direction_frequencies)
+                                   if config.direction_frequencies >= 0 else None)
+        direction_dim = self.direction_encoding.output_dim if self.direction_encoding is not None else 0
+        self.color_net = MLP(direction_dim + config.geo_feature_dim, config.color_width,
                              config.color_layers, 3, out_activation=nn.Sigmoid())
         self.feature_dim = config.color_width
 
@@ -100,6 +87,8 @@ class DensityField(Field):
 
     def color_features(self, positions, directions, normals, geo_features) -> torch.Tensor:
         # The geometry feature already encodes the position; normals are unused (a density field has none).
+        if self.direction_encoding is None:
+            return self.color_net.features(geo_features)
         return self.color_net.features(torch.cat([self.direction_encoding(directions), geo_features], dim=-1))
 
     def decode_color(self, features: torch.Tensor) -> torch.Tensor:

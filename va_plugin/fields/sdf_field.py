@@ -79,18 +79,7 @@ class SDFField(Field):
         gradients (eikonal, normals) need one backward pass, not autograd's double backward. Without
         grad mode (evaluation) nothing is recorded. Matches ``torch.autograd.grad`` of :meth:`sdf` to
         float rounding."""
-        net = self.sdf_net
-        if net.out_activation is not None:
-            raise NotImplementedError("the analytic SDF gradient assumes a linear output layer")
-        encoded = self.position_encoding(positions)
-        h, slopes = encoded, []
-        for layer in net.hidden:
-            h, slope = _activation_and_slope(net.activation, layer(h))
-            slopes.append(slope)
-        out = net.out(h)
-        grad = net.out.weight[0]  # d SDF / d h of the last hidden layer, broadcast over the points
-        for layer, slope in zip(reversed(net.hidden), reversed(slopes)):
-            grad = (grad * slope) @ layer.weight
+        out, grad = mlp_with_input_gradient(self.sdf_net, self.position_encoding(positions))
         return out[..., :1], out[..., 1:], self.position_encoding.pull_back(positions, grad)
 
     def sdf(self, positions: torch.Tensor) -> torch.Tensor:
@@ -103,6 +92,26 @@ class SDFField(Field):
 
     def decode_color(self, features: torch.Tensor) -> torch.Tensor:
         return self.color_net.head(features)
+
+
+def mlp_with_input_gradient(net: MLP, inputs: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    """An MLP's output ``[..., out]`` and the derivative of its first output with respect to its
+    input ``[..., in]``, the chain rule written out next to the forward pass.
+
+    With z_k = W_k h_(k-1) + b_k and h_k = a(z_k): dy/dh_(k-1) = (dy/dh_k * a'(z_k)) W_k, started
+    from the first row of the (linear) output layer. Every step is differentiable once, so a loss on
+    the derivative trains the weights with one ordinary backward pass."""
+    if net.out_activation is not None:
+        raise NotImplementedError("the analytic SDF gradient assumes a linear output layer")
+    h, slopes = inputs, []
+    for layer in net.hidden:
+        h, slope = _activation_and_slope(net.activation, layer(h))
+        slopes.append(slope)
+    out = net.out(h)
+    grad = net.out.weight[0]  # d y / d h of the last hidden layer, broadcast over the points
+    for layer, slope in zip(reversed(net.hidden), reversed(slopes)):
+        grad = (grad * slope) @ layer.weight
+    return out, grad
 
 
 def _activation_and_slope(activation: nn.Module, z: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:

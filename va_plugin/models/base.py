@@ -53,8 +53,12 @@ class Model(nn.Module):
 
     # -- training -------------------------------------------------------------------------------
     def update_step(self, step: int) -> None:
-        """Called by the trainer before each step; schedules read ``self.step``."""
+        """Called by the trainer before each step; schedules read ``self.step``, and the field's own
+        schedules (``Field.update_step``) follow."""
         self.step = step
+        field = getattr(self, "field", None)
+        if field is not None:
+            field.update_step(step, self.scene.max_steps)
 
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         raise NotImplementedError

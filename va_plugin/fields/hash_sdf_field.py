@@ -1,0 +1,197 @@
+"""A hash-grid SDF field: multiresolution hash encoding, a small SDF MLP and a small colour MLP.
+
+The capacity sits in the hash tables, so a step costs a few table look-ups and two narrow MLPs
+instead of a 4 x 256 network: on 2 CPU cores this is what lets NeuS converge in minutes. The levels
+open coarse to fine over the first part of training (a hash grid with every level open fits each
+view's pixels with high-frequency noise long before the shape is right, most of all from 4 views).
+
+The colour network is view-independent by default (``direction_frequencies = -1``): with four input
+directions a direction input lets it explain each view with colours that are wrong everywhere in
+between (measured: benchmarks/RESULTS.md, "Hash-grid SDF backbone").
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from typing import Tuple, Type
+
+import torch
+from torch import nn
+
+from va_plugin.errors import ConfigError
+from va_plugin.fields.base import MLP, Field, HashGridFieldConfig
+from va_plugin.fields.encodings.positional import PositionalEncoding
+from va_plugin.fields.sdf_field import mlp_with_input_gradient
+
+SDF_GRADIENT_KINDS = ("analytic", "finite_difference")
+
+# Vertices of a regular tetrahedron: sum_k v_k f(x + e v_k) / (4 e) is a second-order estimate of
+# grad f(x) from four evaluations (central differences need six).
+_TETRAHEDRON = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))
+
+
+@dataclass
+class HashSDFFieldConfig(HashGridFieldConfig):
+    """A NeuS field on a hash grid: SDF MLP on (x, hash(x)), colour MLP on (feature, normal[, gamma(d)])."""
+
+    _target: Type = field(default_factory=lambda: HashSDFField)
+    start_levels: int = 4
+    """Levels open at step 0 (coarse to fine); the others open one by one."""
+    coarse_to_fine_fraction: float = 0.3
+    """Share of the step budget after which every level is open (0: all open from the start)."""
+    sdf_width: int = 64
+    """Hidden width of the SDF MLP."""
+    sdf_layers: int = 1
+    """Hidden layers of the SDF MLP."""
+    geo_feature_dim: int = 15
+    """Width of the geometry feature passed to the colour MLP."""
+    softplus_beta: float = 100.0
+    """Sharpness of the SDF MLP's softplus activations."""
+    init_radius: float = 0.5
+    """Radius of the sphere the SDF starts as."""
+    color_width: int = 64
+    """Hidden width of the colour MLP; f_shared has this width."""
+    color_layers: int = 2
+    """Hidden layers of the colour MLP."""
+    use_normal: bool = True
+    """Feed the surface normal to the colour MLP."""
+    direction_frequencies: int = -1
+    """The view direction in the colour MLP: -1 leaves it out (view-independent colour, the default
+    for few views), 0 feeds the raw direction, k > 0 adds k frequency bands."""
+    sdf_gradient: str = "analytic"
+    """"analytic" (the grid's trilinear derivative, exact inside each cell) or "finite_difference"
+    (four tetrahedral SDF evaluations at the finest open level's cell size: smoother normals whose
+    gradients reach neighbouring cells, at about 4x the geometry cost)."""
+    finite_difference_cells: float = 0.5
+    """Step of the finite differences, in cells of the finest open level."""
+
+
+class HashSDFField(Field):
+    geometry_kind = "sdf"
+
+    def __init__(self, config: HashSDFFieldConfig) -> None:
+        super().__init__()
+        if config.sdf_gradient not in SDF_GRADIENT_KINDS:
+            raise ConfigError(f"field.sdf_gradient must be one of {', '.join(SDF_GRADIENT_KINDS)}, "
+                              f"got {config.sdf_gradient!r}")
+        if not 0 <= config.start_levels <= config.n_levels:
+            raise ConfigError(f"field.start_levels must be in [0, {config.n_levels}], got {config.start_levels}")
+        if not 0.0 <= config.coarse_to_fine_fraction <= 1.0:
+            raise ConfigError(f"field.coarse_to_fine_fraction must be in [0, 1], got {config.coarse_to_fine_fraction}")
+        if config.direction_frequencies < -1:
+            raise ConfigError("field.direction_frequencies must be -1 (no direction), 0 or a positive count")
+        self.config = config
+        self.encoding = config.make_encoding()
+        self.sdf_net = MLP(3 + self.encoding.output_dim, config.sdf_width, config.sdf_layers,
+                           1 + config.geo_feature_dim, activation=nn.Softplus(beta=config.softplus_beta))
+        self.direction_encoding = (PositionalEncoding(3, config.direction_frequencies)
+                                   if config.direction_frequencies >= 0 else None)
+        color_in = config.geo_feature_dim + (3 if config.use_normal else 0) + \
+            (self.direction_encoding.output_dim if self.direction_encoding is not None else 0)
+        self.color_net = MLP(color_in, config.color_width, config.color_layers, 3, out_activation=nn.Sigmoid())
+        self.feature_dim = config.color_width
+        self._sphere_init()
+        self.encoding.set_active_levels(config.start_levels if config.coarse_to_fine_fraction > 0 else config.n_levels)
+
+    def _sphere_init(self) -> None:
+        """Start as the SDF of a sphere of ``init_radius``, computed from the raw coordinates while the
+        tables start near 0. With one hidden layer its units come in pairs +u_k, -u_k over directions
+        u_k spread evenly on the sphere (a Fibonacci lattice), so that the sum of softplus(+-u_k . x)
+        is about sum_k |u_k . x| = (width / 4) |x|; deeper networks take IGR's random initialisation.
+        The output bias is then set so that the sphere of ``init_radius`` is the zero level set."""
+        layers = list(self.sdf_net.hidden)
+        out = self.sdf_net.out
+        with torch.no_grad():
+            for layer in layers:
+                nn.init.normal_(layer.weight, 0.0, math.sqrt(2.0) / math.sqrt(layer.out_features))
+                nn.init.zeros_(layer.bias)
+            width = layers[0].out_features
+            if len(layers) == 1 and width >= 8:
+                pairs = fibonacci_sphere(width // 2)
+                layers[0].weight[: 2 * len(pairs), :3] = torch.cat([pairs, -pairs])
+                layers[0].weight[2 * len(pairs):, :3] = 0.0
+                nn.init.constant_(out.weight, 4.0 / (2 * len(pairs)))
+            else:
+                nn.init.normal_(out.weight, math.sqrt(math.pi) / math.sqrt(out.in_features), 1e-4)
+            # the geometry features start small and varied rather than as copies of the SDF
+            nn.init.normal_(out.weight[1:], 0.0, 1.0 / math.sqrt(out.in_features))
+            nn.init.zeros_(out.bias)
+            on_sphere = fibonacci_sphere(256) * self.config.init_radius
+            out.bias[0] = -self.sdf_net(self._inputs(on_sphere))[:, 0].mean()
+
+    # -- schedule -------------------------------------------------------------------------------
+    def active_levels(self, step: int, max_steps: int) -> int:
+        """Open levels at ``step``: ``start_levels``, then linearly more until every level is open
+        at ``coarse_to_fine_fraction * max_steps``."""
+        cfg = self.config
+        span = cfg.coarse_to_fine_fraction * max_steps
+        if span <= 0 or step >= span:
+            return cfg.n_levels
+        return min(cfg.n_levels, cfg.start_levels + int((cfg.n_levels - cfg.start_levels) * step / span) + 1)
+
+    def update_step(self, step: int, max_steps: int) -> None:
+        self.encoding.set_active_levels(self.active_levels(step, max_steps))
+
+    def finite_difference_step(self) -> float:
+        """Step (world units) of the finite-difference gradient: a fraction of the finest open cell."""
+        finest = self.encoding.resolutions[max(self.encoding.n_active_levels, 1) - 1]
+        return self.config.finite_difference_cells * 2.0 * self.config.bound / finest
+
+    # -- geometry -------------------------------------------------------------------------------
+    def _inputs(self, positions: torch.Tensor) -> torch.Tensor:
+        return torch.cat([positions, self.encoding(positions)], dim=-1)
+
+    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+        out = self.sdf_net(self._inputs(positions))
+        return out[..., :1], out[..., 1:]
+
+    def sdf(self, positions: torch.Tensor) -> torch.Tensor:
+        """SDF only, ``[..., 1]``."""
+        return self.geometry(positions)[0]
+
+    def geometry_and_gradient(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]``, with a
+        graph that one ordinary backward pass trains from (no double backward)."""
+        if self.config.sdf_gradient == "finite_difference":
+            return self._finite_difference(positions)
+        flat = positions.reshape(-1, 3)
+        if torch.is_grad_enabled():
+            encoded, pullback = self.encoding.forward_with_pullback(flat)
+        else:  # chunked, for rendering many points
+            encoded, jacobian = self.encoding.forward_with_jacobian(flat)
+            pullback = lambda grad: torch.einsum("nd,ndk->nk", grad, jacobian)  # noqa: E731
+        out, grad_in = mlp_with_input_gradient(self.sdf_net, torch.cat([flat, encoded], dim=-1))
+        gradient = grad_in[:, :3] + pullback(grad_in[:, 3:])
+        lead = positions.shape[:-1]
+        return out[:, :1].reshape(*lead, 1), out[:, 1:].reshape(*lead, out.shape[-1] - 1), gradient.reshape(*lead, 3)
+
+    def _finite_difference(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        step = self.finite_difference_step()
+        vertices = positions.new_tensor(_TETRAHEDRON)  # [4, 3]
+        sdf, features = self.geometry(positions)
+        probes = self.sdf(positions[..., None, :] + step * vertices)[..., 0]  # [..., 4]
+        gradient = (probes[..., None] * vertices).sum(-2) / (4.0 * step)
+        return sdf, features, gradient
+
+    # -- colour ---------------------------------------------------------------------------------
+    def color_features(self, positions, directions, normals, geo_features) -> torch.Tensor:
+        parts = [geo_features]
+        if self.config.use_normal:
+            parts.append(normals)
+        if self.direction_encoding is not None:
+            parts.append(self.direction_encoding(directions))
+        return self.color_net.features(torch.cat(parts, dim=-1))
+
+    def decode_color(self, features: torch.Tensor) -> torch.Tensor:
+        return self.color_net.head(features)
+
+
+
+def fibonacci_sphere(n: int) -> torch.Tensor:
+    """``n`` unit vectors spread evenly over the sphere (a Fibonacci lattice), ``[n, 3]``."""
+    k = torch.arange(n, dtype=torch.float64) + 0.5
+    z = 1.0 - 2.0 * k / n
+    radius = torch.sqrt((1.0 - z * z).clamp_min(0.0))
+    angle = math.pi * (3.0 - math.sqrt(5.0)) * k
+    return torch.stack([radius * torch.cos(angle), radius * torch.sin(angle), z], dim=-1).float()
