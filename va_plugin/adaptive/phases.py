@@ -114,7 +114,8 @@ def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
         if wanted != field.current_phase:
             field.set_phase(wanted)
             _announce(trainer, step, f"phase {wanted}: {PHASE_NAMES[wanted]}", phase=wanted)
-        trainer.lr_multipliers["fields"] = cfg.shared_lr_scale if wanted >= BRANCHES else 1.0
+        for group in SHARED_GROUPS:  # the shared field and NeuS's inv_s
+            trainer.lr_multipliers[group] = cfg.shared_lr_scale if wanted >= BRANCHES else 1.0
 
     return TrainingCallback(switch, BEFORE_STEP)
 
@@ -160,6 +161,10 @@ def _decide_skip(field: ViewAdaptiveField, trainer, step: int) -> bool:
         _announce(trainer, step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB): adaptive phases on",
                   residual_spread_db=spread)
     return consistent
+
+
+SHARED_GROUPS = ("fields", "variance")
+"""Optimizer groups of the shared model, slowed by ``shared_lr_scale`` once the branches train."""
 
 
 def _announce(trainer, step: int, message: str, **fields) -> None:

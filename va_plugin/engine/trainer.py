@@ -37,7 +37,8 @@ class TrainerConfig(InstantiateConfig):
     """Registered name of the method (checked when resuming)."""
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     """Data manager and model."""
-    optimizers: Dict[str, OptimizerConfig] = field(default_factory=lambda: {"fields": OptimizerConfig()})
+    optimizers: Dict[str, OptimizerConfig] = field(
+        default_factory=lambda: {"fields": OptimizerConfig(), "variance": OptimizerConfig()})
     """One optimizer config per parameter group the model reports."""
     scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
     """Learning-rate schedule shared by every group."""

@@ -98,7 +98,7 @@ class NeuSModel(Model):
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
         groups = self.field.param_groups()
-        groups.setdefault("fields", []).extend(self.variance.parameters())
+        groups["variance"] = list(self.variance.parameters())  # inv_s: its own rate (a method config sets it)
         return groups
 
     def sharpness(self) -> Optional[float]:
