@@ -11,6 +11,7 @@ from typing import List, Optional
 from va_plugin.cli.common import friendly_errors
 from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
+from va_plugin.utils.memory import check_mesh_resolution, check_render_size
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -44,9 +45,13 @@ def main(argv: Optional[List[str]] = None) -> int:
         from va_plugin.export.texture import check_texture_size
 
         check_texture_size(args.texture_size)
+    check_mesh_resolution(args.mesh_resolution, "--mesh-resolution")
     from va_plugin.eval.evaluate import evaluate_run
 
     pipeline, state = load_run(args.load_dir, device=args.device)
+    if pipeline.datamanager.test is not None:
+        test_cameras = pipeline.datamanager.test.cameras
+        check_render_size(test_cameras.width, test_cameras.height, args.image_scale, "--image-scale")
     mesh = None
     if args.texture:
         from va_plugin.export.mesh import extract_mesh

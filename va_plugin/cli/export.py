@@ -46,6 +46,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Optional[List[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     from va_plugin.errors import ConfigError
+    from va_plugin.utils.memory import check_image_side, check_mesh_resolution, check_render_size
 
     if getattr(args, "resolution", 2) < 2 or getattr(args, "frames", 1) < 1 or getattr(args, "scale", 1.0) <= 0:
         raise ConfigError("--resolution must be at least 2, --frames at least 1 and --scale positive")
@@ -60,7 +61,14 @@ def main(argv: Optional[List[str]] = None) -> int:
         if args.texture:
             check_texture_size(args.texture_size)
             check_texture_output(args.output)
+        check_mesh_resolution(args.resolution)
     pipeline, _ = load_run(args.load_dir, device=args.device)
+    if args.what in ("render", "diagnostics"):
+        views = pipeline.datamanager.test if args.what == "render" and pipeline.datamanager.test is not None \
+            else pipeline.datamanager.train
+        check_render_size(views.cameras.width, views.cameras.height, args.scale)
+        if args.what == "render":
+            check_image_side(args.turntable_resolution, "--turntable-resolution")
     if args.what == "mesh":
         from va_plugin.export.mesh import extract_mesh, write_mesh
 

@@ -34,6 +34,7 @@ from va_plugin.cameras import Cameras
 from va_plugin.data.images import write_image
 from va_plugin.data.scenes.raycast import o3d, smooth_vertex_normals
 from va_plugin.errors import VAError
+from va_plugin.utils.memory import check_texture_memory
 
 TEXTURE_FORMATS = (".glb", ".obj")
 MIN_TEXTURE_SIZE = 16
@@ -343,6 +344,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
 
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
+    check_texture_memory(size, len(views))
     if fusion not in FUSIONS:
         raise VAError(f"unknown fusion {fusion!r}; use one of {', '.join(FUSIONS)}")
     if len(np.asarray(mesh.faces)) == 0:

@@ -1,0 +1,74 @@
+"""Up-front memory checks: an impossible request is one line naming the largest value that fits."""
+
+import pytest
+from conftest import tiny_config
+
+from va_plugin.cli import eval as eval_cli
+from va_plugin.cli import export as export_cli
+from va_plugin.errors import ConfigError
+from va_plugin.utils import memory
+
+GIB = 2**30
+
+
+@pytest.fixture
+def eight_gib(monkeypatch):
+    monkeypatch.setattr(memory, "available_bytes", lambda: 10 * GIB)  # 8 GiB usable
+
+
+def test_available_memory_is_positive():
+    assert memory.available_bytes() > 0
+
+
+def test_largest_mesh_resolution_named_fits_and_one_more_does_not(eight_gib):
+    with pytest.raises(ConfigError, match="--resolution 100000 needs about") as info:
+        memory.check_mesh_resolution(100000)
+    largest = int(str(info.value).rsplit(" ", 1)[1])
+    memory.check_mesh_resolution(largest)
+    with pytest.raises(ConfigError):
+        memory.check_mesh_resolution(largest + 1)
+    assert 300 < largest < 500  # 8 GiB / 128 B per voxel: 406^3
+
+
+def test_largest_render_scale_named_fits(eight_gib):
+    with pytest.raises(ConfigError, match=r"--scale 100 \(25600x25600 pixels per view\)") as info:
+        memory.check_render_size(256, 256, 100)
+    largest = float(str(info.value).rsplit(" ", 1)[1])
+    memory.check_render_size(256, 256, largest)
+    with pytest.raises(ConfigError):
+        memory.check_render_size(256, 256, largest + 0.02)
+
+
+def test_largest_texture_named_is_a_power_of_two_that_fits(eight_gib):
+    with pytest.raises(ConfigError, match="--texture-size 8192 with 16 views") as info:
+        memory.check_texture_memory(8192, 16)
+    largest = int(str(info.value).rsplit(" ", 1)[1])
+    assert largest & (largest - 1) == 0
+    memory.check_texture_memory(largest, 16)
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    from va_plugin.data.scenes.builder import build_procedural_scene
+
+    scene = build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=4, resolution=24)
+    out = tmp_path_factory.mktemp("run")
+    tiny_config("neus", scene, out, steps=1).setup().train()
+    return out
+
+
+@pytest.mark.parametrize("main, argv, message", [
+    (export_cli.main, ["mesh", "--resolution", "100000"], "the largest that fits is --resolution "),
+    (export_cli.main, ["render", "--scale", "10000"], "the largest that fits is --scale "),
+    (export_cli.main, ["render", "--turntable-resolution", "10000000"], "largest that fits is --turntable-resolution"),
+    (export_cli.main, ["diagnostics", "--scale", "10000"], "the largest that fits is --scale "),
+    (eval_cli.main, ["--mesh-resolution", "100000"], "the largest that fits is --mesh-resolution "),
+    (eval_cli.main, ["--image-scale", "10000"], "the largest that fits is --image-scale "),
+])
+def test_commands_refuse_requests_that_cannot_fit(run, main, argv, message, capsys):
+    before = sorted(p.name for p in run.rglob("*"))
+    argv = argv[:1] + ["--load-dir", str(run)] + argv[1:] if main is export_cli.main else ["--load-dir", str(run), *argv]
+    code = main(argv + ["--device", "cpu"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+    assert sorted(p.name for p in run.rglob("*")) == before  # nothing written

@@ -1,0 +1,80 @@
+"""Up-front memory estimates for requests whose size the user picks (a marching-cubes grid, a render
+scale, a texture size), so an impossible request is refused with the largest value that fits instead of
+ending in a traceback from the allocator minutes later."""
+
+from __future__ import annotations
+
+import math
+import os
+
+from va_plugin.errors import ConfigError
+
+GRID_BYTES_PER_VOXEL = 128
+"""Peak bytes per grid point of mesh extraction (field values, the bound check's float64 radii and masks,
+marching cubes' own copies): measured 116 B/voxel between resolutions 64 and 256 (peak RSS), rounded up."""
+RENDER_BYTES_PER_PIXEL = 512
+"""Peak bytes per pixel of a render: pixel indices, the gathered camera matrices and rays of the whole
+image, the collected outputs, the target resized next to it and the written pair."""
+BAKE_BYTES_PER_TEXEL = 96
+BAKE_BYTES_PER_TEXEL_VIEW = 40
+"""Texture baking: per texel the surface point, normal, UV raster and image; per texel and view the
+projected colour, weight, residual and the medoid's distances."""
+USABLE_SHARE = 0.8
+"""Share of the available memory a request may plan to use (the rest is for the process around it)."""
+
+
+def available_bytes() -> int:
+    """Memory the system can still give (``MemAvailable`` of /proc/meminfo; physical pages elsewhere)."""
+    try:
+        with open("/proc/meminfo") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except OSError:
+        pass
+    return os.sysconf("SC_AVPHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+
+
+def _gib(n: float) -> str:
+    return f"{n / 2**30:.1f} GiB"
+
+
+def budget() -> float:
+    return USABLE_SHARE * available_bytes()
+
+
+def _refuse(option: str, value, need: float, room: float, largest, what: str = "") -> None:
+    raise ConfigError(f"{option} {value}{what} needs about {_gib(need)} of memory and {_gib(room)} can be used "
+                      f"here; the largest that fits is {option} {largest}")
+
+
+def check_mesh_resolution(resolution: int, option: str = "--resolution") -> None:
+    """Refuse a marching-cubes grid whose extraction would not fit in memory."""
+    need, room = float(resolution) ** 3 * GRID_BYTES_PER_VOXEL, budget()
+    if need > room:
+        _refuse(option, resolution, need, room, int((room / GRID_BYTES_PER_VOXEL) ** (1.0 / 3.0)))
+
+
+def check_render_size(width: int, height: int, scale: float, option: str = "--scale") -> None:
+    """Refuse rendering ``width x height`` images at ``scale`` when one view would not fit in memory."""
+    need, room = float(width) * height * scale * scale * RENDER_BYTES_PER_PIXEL, budget()
+    if need > room:
+        largest = math.floor(100.0 * math.sqrt(room / (RENDER_BYTES_PER_PIXEL * width * height))) / 100.0
+        _refuse(option, f"{scale:g}", need, room, f"{largest:g}",
+                f" ({round(width * scale)}x{round(height * scale)} pixels per view)")
+
+
+def check_image_side(side: int, option: str) -> None:
+    """Refuse rendering ``side x side`` images when one would not fit in memory."""
+    need, room = float(side) ** 2 * RENDER_BYTES_PER_PIXEL, budget()
+    if need > room:
+        _refuse(option, side, need, room, int(math.sqrt(room / RENDER_BYTES_PER_PIXEL)))
+
+
+def check_texture_memory(size: int, n_views: int, option: str = "--texture-size") -> None:
+    """Refuse a texture bake that would not fit in memory (the largest power of two that fits is named)."""
+    per_texel = BAKE_BYTES_PER_TEXEL + BAKE_BYTES_PER_TEXEL_VIEW * n_views
+    need, room = float(size) ** 2 * per_texel, budget()
+    if need > room:
+        largest = 2 ** int(math.floor(math.log2(max(math.sqrt(room / per_texel), 1.0))))
+        _refuse(option, size, need, room, largest, f" with {n_views} views")
