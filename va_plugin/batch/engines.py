@@ -21,6 +21,7 @@ import time
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
+from queue import Empty
 from typing import Any, Callable, Dict, List, Optional, Sequence
 
 from va_plugin.batch.job import ObjectJob, failed_record, run_object
@@ -64,6 +65,15 @@ def run_local(jobs: Sequence[ObjectJob], workers: int, on_done: OnDone) -> None:
         remaining = _run_pool(remaining, workers, on_done)
 
 
+def _drain(queue) -> set:
+    names = set()
+    while True:
+        try:
+            names.add(queue.get(timeout=0.01))
+        except Empty:
+            return names
+
+
 def _run_pool(jobs: List[ObjectJob], workers: int, on_done: OnDone) -> List[ObjectJob]:
     """Run ``jobs`` in one pool; the jobs left to run when a worker died (none when all finished)."""
     context = get_context("spawn")
@@ -71,11 +81,12 @@ def _run_pool(jobs: List[ObjectJob], workers: int, on_done: OnDone) -> List[Obje
     pool = ProcessPoolExecutor(max_workers=min(workers, len(jobs)), mp_context=context,
                                initializer=_start_worker, initargs=(os.getpid(), started))
     futures = {pool.submit(_run_in_worker, job): job for job in jobs}
-    finished = set()
+    finished, in_flight = set(), set()
     try:
         pending = set(futures)
         while pending:
             done, pending = wait(pending, return_when=FIRST_COMPLETED)
+            in_flight |= _drain(started)  # read as it comes: a full queue would hold its workers at exit
             for future in done:
                 try:
                     record = future.result()
@@ -86,10 +97,7 @@ def _run_pool(jobs: List[ObjectJob], workers: int, on_done: OnDone) -> List[Obje
         lost = [job for job in jobs if job.name not in finished]
         if not lost:
             return []
-        in_flight = set()
-        while not started.empty():
-            in_flight.add(started.get())
-        in_flight -= finished
+        in_flight = (in_flight | _drain(started)) - finished
         for job in lost:
             if job.name in in_flight:
                 on_done(failed_record(job, "the worker process running it died (out of memory, or killed); "
