@@ -263,17 +263,19 @@ def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, no
     return colours, weights
 
 
-def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 16384) -> np.ndarray:
+def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 65536) -> np.ndarray:
     """Per point, the visible colour with the least weighted sum of distances to the other visible
     colours: ``colours [m, n, 3]``, ``weights [m, n]`` -> ``[m, 3]``."""
-    out = np.zeros((len(colours), 3), np.float32)
-    for s in range(0, len(colours), chunk):
-        c, w = colours[s:s + chunk], weights[s:s + chunk]
-        distance = np.linalg.norm(c[:, :, None, :] - c[:, None, :, :], axis=-1)  # [m, n, n]
-        cost = (distance * w[:, None, :]).sum(-1)
-        cost[w <= 0] = np.inf
-        best = np.argmin(cost, axis=1)
-        out[s:s + chunk] = np.take_along_axis(c, best[:, None, None], axis=1)[:, 0]
+    # with at most two visible views the medoid is the heavier one: no pairwise distances needed
+    out = np.take_along_axis(colours, np.argmax(weights, axis=1)[:, None, None], axis=1)[:, 0].astype(np.float32)
+    many = np.nonzero((weights > 0).sum(1) > 2)[0]
+    for s in range(0, len(many), chunk):
+        rows = many[s:s + chunk]
+        c, w = torch.from_numpy(colours[rows]), torch.from_numpy(weights[rows])
+        cost = torch.bmm(torch.cdist(c, c), w[:, :, None])[:, :, 0]  # [m, n]: weighted distance to the others
+        cost[w <= 0] = torch.inf
+        best = cost.argmin(1)
+        out[rows] = c[torch.arange(len(rows)), best].numpy()
     return out
 
 
@@ -300,19 +302,20 @@ def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
     where no view sees the point)."""
     if mode not in FUSIONS:
         raise VAError(f"unknown fusion {mode!r}; use one of {', '.join(FUSIONS)}")
-    w = weights.astype(np.float32)
+    colours, weights = np.ascontiguousarray(colours, np.float32), np.ascontiguousarray(weights, np.float32)
+    c, w0 = torch.from_numpy(colours), torch.from_numpy(weights)
+    w = w0
     if mode == "robust" and colours.shape[1] > 1:
-        consensus = weighted_medoid(colours, w)
-        residual = np.linalg.norm(colours - consensus[:, None], axis=-1)
-        noise = view_noise(residual, w > 0)
+        consensus = torch.from_numpy(weighted_medoid(colours, weights))
+        residual = (c - consensus[:, None]).norm(dim=-1)
+        noise = torch.from_numpy(view_noise(residual.numpy(), weights > 0))
         for _ in range(ROBUST_ROUNDS):
-            w = weights / (1.0 + (residual / (OUTLIER_SCALE * noise)) ** 2)
-            total = np.maximum(w.sum(1, keepdims=True), 1e-12)
-            consensus = (w[:, :, None] * colours).sum(1) / total
-            residual = np.linalg.norm(colours - consensus[:, None], axis=-1)
-    total = w.sum(1, keepdims=True)
-    share = np.where(total > 1e-12, w / np.maximum(total, 1e-12), 0.0).astype(np.float32)
-    return (share[:, :, None] * colours).sum(1).astype(np.float32), share
+            w = w0 / (1.0 + (residual / (OUTLIER_SCALE * noise)) ** 2)
+            consensus = torch.einsum("mn,mnc->mc", w, c) / w.sum(1, keepdim=True).clamp_min(1e-12)
+            residual = (c - consensus[:, None]).norm(dim=-1)
+    total = w.sum(1, keepdim=True)
+    share = torch.where(total > 1e-12, w / total.clamp_min(1e-12), torch.zeros_like(w))
+    return torch.einsum("mn,mnc->mc", share, c).numpy(), share.numpy()
 
 
 def dilate(image: np.ndarray, filled: np.ndarray, iterations: int = PADDING_TEXELS) -> np.ndarray:

@@ -1,0 +1,125 @@
+"""Textured meshes against field renders on held-out views (issue 20).
+
+For each run folder: extract the mesh (marching cubes, 128^3), bake a texture from the training views with
+robust fusion and with plain angle-weighted averaging, render both by ray casting at every held-out view,
+and score them with the field's own renders (PSNR, SSIM, LPIPS). Also times the bake from 16 views (the
+4 inputs plus 12 held-out views as stand-ins) on the same mesh. One JSON line per run in --out; a table
+of all lines at the end.
+
+    OMP_NUM_THREADS=1 python benchmarks/run_texture.py --runs outputs/texture20/runs/*_l2 \\
+        --out outputs/texture20/l2.jsonl
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from va_plugin.cli.common import friendly_errors
+from va_plugin.cli.run import load_run
+from va_plugin.errors import ConfigError
+from va_plugin.eval.evaluate import image_metrics
+from va_plugin.eval.mesh_render import textured_mesh_metrics
+from va_plugin.export.mesh import extract_mesh
+from va_plugin.export.texture import (Views, bake_picture, bake_texture, check_texture_size, field_fallback,
+                                      run_views)
+
+KEYS = ("psnr", "ssim", "lpips")
+
+
+def timing_views(pipeline, count: int) -> Views:
+    """``count`` views of 256 px: the run's inputs, then held-out views."""
+    dm = pipeline.datamanager
+    train, test = run_views(pipeline), dm.test
+    extra = count - len(train)
+    if extra <= 0 or test is None or len(test) < extra:
+        raise ConfigError(f"the run has too few views for a {count}-view timing")
+    cameras = type(train.cameras)(torch.cat([train.cameras.c2w, test.cameras.c2w[:extra]]),
+                                  torch.cat([train.cameras.fx, test.cameras.fx[:extra]]),
+                                  torch.cat([train.cameras.fy, test.cameras.fy[:extra]]),
+                                  torch.cat([train.cameras.cx, test.cameras.cx[:extra]]),
+                                  torch.cat([train.cameras.cy, test.cameras.cy[:extra]]),
+                                  train.cameras.width, train.cameras.height, train.cameras.camera_type,
+                                  train.cameras.pixel_offset)
+    images = np.concatenate([train.images, test.images[:extra].numpy()])
+    return Views(cameras, images.astype(np.float32))
+
+
+def evaluate(run: Path, size: int, max_views, timing_count: int) -> dict:
+    pipeline, state = load_run(run, device="cpu")
+    record = {"run": str(run), "steps": int(state["step"])}
+    started = time.perf_counter()
+    mesh = extract_mesh(pipeline.model, resolution=128, with_color=False)
+    record["mesh_seconds"] = round(time.perf_counter() - started, 2)
+    record["vertices"], record["faces"] = len(mesh.vertices), len(mesh.faces)
+    field = image_metrics(pipeline, max_views=max_views, progress=False)
+    record["field"] = {k: field[k] for k in KEYS}
+    record["views"] = field["image_params"]["views"]
+    fallback = field_fallback(pipeline.model)
+    for fusion in ("robust", "mean"):
+        textured, report = bake_texture(mesh, run_views(pipeline), size=size, fusion=fusion, fallback=fallback)
+        scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False)
+        record[fusion] = {**{k: scores[k] for k in KEYS}, **report.summary()}
+        if fusion == "robust":
+            bake_picture(textured, report, run / "texture_bake.png")
+    if timing_count:
+        _, report = bake_texture(mesh, timing_views(pipeline, timing_count), size=size, fusion="robust",
+                                 fallback=fallback)
+        record[f"bake_{timing_count}_views_seconds"] = report.summary()["seconds"]
+    return record
+
+
+def table(records) -> str:
+    rows = ["| run | field PSNR / SSIM / LPIPS | mesh robust | mesh mean | robust better than field (LPIPS) |",
+            "|---|---|---|---|---|"]
+    for r in records:
+        cells = [" / ".join(f"{r[part][k]:.4f}" if k != "psnr" else f"{r[part][k]:.2f}" for k in KEYS)
+                 for part in ("field", "robust", "mean")]
+        rows.append(f"| {Path(r['run']).name} | {' | '.join(cells)} | "
+                    f"{'yes' if r['robust']['lpips'] < r['field']['lpips'] else 'no'} |")
+    lp = {part: [r[part]["lpips"] for r in records] for part in ("field", "robust", "mean")}
+    rows.append(f"| median | {np.median(lp['field']):.4f} | {np.median(lp['robust']):.4f} | "
+                f"{np.median(lp['mean']):.4f} | {sum(a < b for a, b in zip(lp['robust'], lp['field']))}/"
+                f"{len(records)} |")
+    return "\n".join(rows)
+
+
+@friendly_errors
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--runs", type=Path, nargs="+", required=True, help="run folders of va-train")
+    parser.add_argument("--out", type=Path, required=True, help="JSON lines, one per run (appended; done runs skipped)")
+    parser.add_argument("--texture-size", type=int, default=1024)
+    parser.add_argument("--max-views", type=int, default=None, help="score at most this many held-out views")
+    parser.add_argument("--timing-views", type=int, default=16,
+                        help="on the first run, also time a bake from this many views (0: no)")
+    parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    args = parser.parse_args(argv)
+    check_texture_size(args.texture_size)
+    torch.set_num_threads(args.threads)
+    done = {}
+    if args.out.exists():
+        for line in args.out.read_text().splitlines():
+            record = json.loads(line)
+            done[record["run"]] = record
+    for k, run in enumerate(args.runs):
+        if str(run) in done:
+            continue
+        record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0)
+        done[str(run)] = record
+        with args.out.open("a") as f:
+            f.write(json.dumps(record) + "\n")
+        print(f"{run.name}: field lpips {record['field']['lpips']:.4f}, mesh robust {record['robust']['lpips']:.4f}, "
+              f"mean {record['mean']['lpips']:.4f}; bake {record['robust']['seconds']}", flush=True)
+    print(table([done[str(r)] for r in args.runs if str(r) in done]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
