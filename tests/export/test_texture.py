@@ -165,3 +165,20 @@ def test_written_files_load_back_with_their_texture(tmp_path, suffix):
     assert len(loaded.faces) == len(textured.faces)
     # UVs survive the round trip (GLB stores v down; trimesh flips it back)
     assert np.abs(np.sort(loaded.visual.uv, 0) - np.sort(textured.uv, 0)).max() < 1e-4
+
+
+def test_inconsistency_maps_weight_a_view_down_where_it_disagrees():
+    mesh = cube()
+    views = cube_views(mesh, SIX_SIDES["azimuths"], SIX_SIDES["elevations"])
+    _, plain = bake_texture(mesh, views, size=TEXTURE, fusion="mean")
+    maps = np.zeros((len(views), RES // 2, RES // 2), np.float32)  # maps at half resolution, as va- runs make them
+    maps[0] = 0.5  # view 0 disagrees with the shared object everywhere
+    views.inconsistency = maps
+    _, flagged = bake_texture(mesh, views, size=TEXTURE, fusion="mean")
+    shared = (plain.weight_maps[0] > 0.05) & (plain.weight_maps[1:].sum(0) > 0.05)  # view 0 and others see
+    assert shared.sum() > 50
+    assert flagged.weight_maps[0][shared].max() < 1e-3
+    # where view 0 is the only one to see a texel it still gives the colour (nothing better is at hand)
+    alone = (plain.weight_maps[0] > 0) & (plain.weight_maps[1:].sum(0) == 0)
+    assert alone.sum() > 10
+    assert np.allclose(flagged.weight_maps[0][alone], 1.0)
