@@ -62,15 +62,18 @@ def evaluate(run: Path, size: int, max_views, timing_count: int) -> dict:
     record["field"] = {k: field[k] for k in KEYS}
     record["views"] = field["image_params"]["views"]
     fallback = field_fallback(pipeline.model)
+    atlas = None
     for fusion in ("robust", "mean"):
-        textured, report = bake_texture(mesh, run_views(pipeline), size=size, fusion=fusion, fallback=fallback)
+        textured, report = bake_texture(mesh, run_views(pipeline), size=size, fusion=fusion, fallback=fallback,
+                                        atlas=atlas)
+        atlas = (textured.vertices, textured.faces, textured.uv)  # unwrap once, bake twice
         scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False)
         record[fusion] = {**{k: scores[k] for k in KEYS}, **report.summary()}
         if fusion == "robust":
             bake_picture(textured, report, run / "texture_bake.png")
     if timing_count:
         _, report = bake_texture(mesh, timing_views(pipeline, timing_count), size=size, fusion="robust",
-                                 fallback=fallback)
+                                 fallback=fallback, atlas=atlas)
         record[f"bake_{timing_count}_views_seconds"] = report.summary()["seconds"]
     return record
 

@@ -342,8 +342,9 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
-                 fallback: Optional[Fallback] = None, progress: bool = False):
-    """UV-unwrap ``mesh`` and bake its texture from ``views``: ``(TexturedMesh, BakeReport)``.
+                 fallback: Optional[Fallback] = None, progress: bool = False, atlas=None):
+    """UV-unwrap ``mesh`` and bake its texture from ``views``: ``(TexturedMesh, BakeReport)``. ``atlas``:
+    the ``(vertices, faces, uv)`` of an earlier :func:`unwrap` of the same mesh at the same size, reused.
 
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
@@ -354,7 +355,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
         raise VAError("the mesh has no faces: nothing to texture")
     seconds = {}
     started = time.perf_counter()
-    vertices, faces, uv, _ = unwrap(mesh, size)
+    vertices, faces, uv = unwrap(mesh, size)[:3] if atlas is None else atlas
     seconds["unwrap"] = time.perf_counter() - started
     started = time.perf_counter()
     face, bary = rasterize_uv(uv, faces, size)
