@@ -174,7 +174,8 @@ def test_a_hopeless_run_stops_with_one_line_and_no_checkpoint(tiny_scene, tmp_pa
     code = train_cli.main(["neus", "--data", str(tiny_scene), "--output-dir", str(run), "--steps", "40",
                            "--no-progress", "--device", "cpu", "--set", "pipeline.datamanager.rays_per_batch=16",
                            "--set", "pipeline.model.n_samples=8", "--set", "pipeline.model.n_importance=8",
-                           "--set", "optimizers.fields.lr=1e36", "--set", "scheduler.warmup_steps=0",
+                           "--set", "optimizers.fields.lr=1e36", "--set", "optimizers.variance.lr=1e36",
+                           "--set", "scheduler.warmup_steps=0",
                            "--set", "health.max_restores=2", "--set", "health.max_skips_in_a_row=2"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2
@@ -191,7 +192,8 @@ def test_a_hopeless_run_stops_also_when_inv_s_collapses_without_nan(tiny_scene, 
                            "--no-progress", "--device", "cpu", "--set", "pipeline.datamanager.rays_per_batch=16",
                            "--set", "pipeline.model.n_samples=8", "--set", "pipeline.model.n_importance=8",
                            "--set", f"pipeline.model.skip_far_samples={str(skip_far_samples).lower()}",
-                           "--set", "optimizers.fields.lr=1e36", "--set", "scheduler.warmup_steps=0",
+                           "--set", "optimizers.fields.lr=1e36", "--set", "optimizers.variance.lr=1e36",
+                           "--set", "scheduler.warmup_steps=0",
                            "--set", "health.max_restores=2", "--set", "health.max_skips_in_a_row=2"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and err[-1].startswith("error: training diverged")
