@@ -227,7 +227,8 @@ def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, no
         vertices, faces: the mesh (its triangles occlude).
         points, normals: ``[m, 3]`` surface points and unit outward normals.
     Returns:
-        colours ``[m, n, 3]`` and weights ``[m, n]`` (0 where view k does not see the point).
+        colours ``[m, n, 3]``, weights ``[m, n]`` (0 where view k does not see the point) and
+        ``in_view [n]`` bool: whether any pixel of view k shows the mesh (inside the view's mask).
     """
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
@@ -236,8 +237,11 @@ def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, no
     m, n = len(points), len(views)
     colours = np.zeros((m, n, 3), np.float32)
     weights = np.zeros((m, n), np.float32)
+    in_view = np.zeros(n, bool)
     cameras = views.cameras
     for k in tqdm(range(n), desc="projecting views", disable=not progress):
+        edge = silhouette_distance(scene, cameras, k, None if views.masks is None else views.masks[k])
+        in_view[k] = bool(edge.max() > 0)
         origins, directions, distance, pix = rays_through(cameras, k, points)
         cos = -(normals * directions).sum(-1)
         candidate = (cos > MIN_COS) & (distance > 0)
@@ -249,7 +253,6 @@ def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, no
         rays = np.concatenate([origins[idx], directions[idx]], -1).astype(np.float32)
         t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
         idx = idx[t_hit >= distance[idx] - tolerance]  # nothing in front of the point
-        edge = silhouette_distance(scene, cameras, k, None if views.masks is None else views.masks[k])
         x, y = pix[idx, 0], pix[idx, 1]
         w = cos[idx] ** 2 * np.clip((bilinear(edge, x, y) - EDGE_MARGIN) / max(edge_pixels, 1e-6), 0.0, 1.0)
         if views.inconsistency is not None:
@@ -260,7 +263,7 @@ def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, no
         keep = w > 0
         colours[idx[keep], k] = bilinear(views.images[k], x[keep], y[keep])
         weights[idx[keep], k] = w[keep]
-    return colours, weights
+    return colours, weights, in_view
 
 
 def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 65536) -> np.ndarray:
@@ -366,12 +369,13 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     vertex_normals = smooth_vertex_normals(vertices, faces)
     normals = np.einsum("mk,mkc->mc", b, vertex_normals[corners])
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
-    colours, weights = view_samples(vertices, faces, points, normals, views, progress=progress)
+    colours, weights, in_view = view_samples(vertices, faces, points, normals, views, progress=progress)
     view_texels = [int(c) for c in (weights > 0).sum(0)]
-    blind = [k for k, c in enumerate(view_texels) if c == 0]
+    blind = [k for k in range(len(views)) if not in_view[k]]
     if blind:
         raise VAError(f"training view{'s' if len(blind) > 1 else ''} {', '.join(map(str, blind))} see"
-                      f"{'' if len(blind) > 1 else 's'} no texel of the mesh: the mesh and the run's cameras "
+                      f"{'' if len(blind) > 1 else 's'} no texel of the mesh (the mesh lies outside "
+                      f"{'their' if len(blind) > 1 else 'its'} image or mask): the mesh and the run's cameras "
                       "do not fit together")
     fused, share = fuse(colours, weights, fusion)
     seen = share.sum(1) > 0
