@@ -26,6 +26,9 @@ from va_plugin.fields.sdf_field import mlp_with_input_gradient
 
 SDF_GRADIENT_KINDS = ("analytic", "finite_difference")
 
+CHUNK_POINTS = 16384
+"""Points per chunk of the gradient-free analytic path (rendering): temporaries stay cache-sized."""
+
 # Vertices of a regular tetrahedron: sum_k v_k f(x + e v_k) / (4 e) is a second-order estimate of
 # grad f(x) from four evaluations (central differences need six).
 _TETRAHEDRON = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1.0, 1.0))
@@ -156,15 +159,20 @@ class HashSDFField(Field):
         if self.config.sdf_gradient == "finite_difference":
             return self._finite_difference(positions)
         flat = positions.reshape(-1, 3)
-        if torch.is_grad_enabled():
-            encoded, pullback = self.encoding.forward_with_pullback(flat)
-        else:  # chunked, for rendering many points
-            encoded, jacobian = self.encoding.forward_with_jacobian(flat)
-            pullback = lambda grad: torch.einsum("nd,ndk->nk", grad, jacobian)  # noqa: E731
-        out, grad_in = mlp_with_input_gradient(self.sdf_net, torch.cat([flat, encoded], dim=-1))
-        gradient = grad_in[:, :3] + pullback(grad_in[:, 3:])
+        if torch.is_grad_enabled() or flat.shape[0] <= CHUNK_POINTS:
+            out, gradient = self._sdf_and_gradient(flat)
+        else:  # rendering many points: cache-sized chunks, nothing recorded
+            parts = [self._sdf_and_gradient(flat[start:start + CHUNK_POINTS])
+                     for start in range(0, flat.shape[0], CHUNK_POINTS)]
+            out, gradient = torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
         lead = positions.shape[:-1]
         return out[:, :1].reshape(*lead, 1), out[:, 1:].reshape(*lead, out.shape[-1] - 1), gradient.reshape(*lead, 3)
+
+    def _sdf_and_gradient(self, flat: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+        """The SDF MLP's output ``[n, 1 + G]`` and the SDF's gradient ``[n, 3]`` at points ``[n, 3]``."""
+        encoded, pullback = self.encoding.forward_with_pullback(flat)
+        out, grad_in = mlp_with_input_gradient(self.sdf_net, torch.cat([flat, encoded], dim=-1))
+        return out, grad_in[:, :3] + pullback(grad_in[:, 3:])
 
     def _finite_difference(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         step = self.finite_difference_step()

@@ -375,47 +375,12 @@ class HashGridEncoding(nn.Module):
         encoded = F.pad(encoded, (0, self.output_dim - encoded.shape[1]))
         return encoded.view(*x.shape[:-1], self.output_dim)
 
-    def forward_with_jacobian(self, x: torch.Tensor, n_active_levels: Optional[int] = None
-                              ) -> Tuple[torch.Tensor, torch.Tensor]:
-        """Encode points and differentiate the encoding with respect to them (world units).
-
-        Args:
-            x: ``[n_points, 3]``.
-            n_active_levels: overrides :attr:`n_active_levels` for this call.
-
-        Returns:
-            ``[n_points, output_dim]`` and the Jacobian ``[n_points, output_dim, 3]``, both
-            differentiable in the table (see :func:`encode_with_jacobian`); rows of inactive levels
-            are zero, and so is the Jacobian of a point outside ``[-bound, bound]`` along the
-            clamped axis. Without grad mode the points go through in cache-sized chunks on CPU.
-        """
-        n_active = self.n_active_levels if n_active_levels is None else n_active_levels
-        flat = x.reshape(-1, 3).to(self.table.dtype)
-        points = normalise_points(flat, self.bound)
-        encoded = points.new_zeros(points.shape[0], self.output_dim)
-        jacobian = points.new_zeros(points.shape[0], self.output_dim, 3)
-        if n_active == 0 or points.shape[0] == 0:
-            return encoded, jacobian
-        levels, width = self.levels().first(n_active), n_active * self.n_features_per_level
-        inside = ((flat > -self.bound) & (flat < self.bound)).to(flat.dtype) / (2.0 * self.bound)
-        if torch.is_grad_enabled():
-            enc, jac = encode_with_jacobian(points, self.table, levels)
-            return F.pad(enc, (0, self.output_dim - width)), F.pad(jac * inside[:, None, :],
-                                                                 (0, 0, 0, self.output_dim - width))
-        chunk = _chunk_size(points)
-        for start in range(0, points.shape[0], chunk):
-            part = slice(start, start + chunk)
-            enc, jac = encode_with_jacobian(points[part], self.table, levels)
-            encoded[part, :width], jacobian[part, :width] = enc, jac * inside[part, None, :]
-        return encoded, jacobian
-
     def forward_with_pullback(self, x: torch.Tensor):
         """Encode points ``[n_points, 3]`` (``[n_points, output_dim]``) and return with them a function
         that maps a derivative with respect to the encoding, ``[n_points, output_dim]``, to the
         derivative with respect to the points in world units, ``[n_points, 3]`` (zero along an axis
-        where the point lies outside ``[-bound, bound]``); see :func:`encode_with_pullback`. Used
-        under grad mode for training (the result is differentiable in the table); without it, use
-        :meth:`forward_with_jacobian`."""
+        where the point lies outside ``[-bound, bound]``); see :func:`encode_with_pullback`. Under
+        grad mode the result is differentiable in the table."""
         n_active = self.n_active_levels
         flat = x.reshape(-1, 3).to(self.table.dtype)
         points = normalise_points(flat, self.bound)
@@ -431,48 +396,15 @@ class HashGridEncoding(nn.Module):
         return F.pad(encoded, (0, self.output_dim - width)), pullback
 
 
-def encode_with_jacobian(x01: torch.Tensor, table: torch.Tensor, levels: GridLevels
-                         ) -> Tuple[torch.Tensor, torch.Tensor]:
-    """The encoding and its Jacobian with respect to the point, from one gather of the corners.
-
-    Plain autograd throughout, so both outputs are differentiable in ``table`` (and in ``x01``): an
-    eikonal or normal loss on an SDF's gradient trains the table with one ordinary backward pass.
-
-    Args:
-        x01: ``[n_points, 3]`` points in ``[0, 1]``.
-
-    Returns:
-        ``encoded`` ``[n_points, n_levels * F]`` (as :func:`encode_points`) and ``jacobian``
-        ``[n_points, n_levels * F, 3]``, d encoded / d x01 inside each cell (a trilinear weight's
-        derivative along an axis is the product of the other two axes' weights, signed, times the
-        level's resolution).
-    """
-    indices, frac = _corners(x01, levels)
-    corners = _gather(table, indices)  # [F, L, 8, N]
-    per_axis = axis_weights(frac)  # [L, 3, 2, N]
-    wx = per_axis[:, 0, :, None, None]
-    wy = per_axis[:, 1, None, :, None]
-    wz = per_axis[:, 2, None, None, :]
-    sign = torch.tensor([-1.0, 1.0], dtype=frac.dtype, device=frac.device)[:, None]
-    dx = (sign[:, None, None] * wy * wz).flatten(1, 3)  # [L, 8, N]
-    dy = (wx * sign[None, :, None] * wz).flatten(1, 3)
-    dz = (wx * wy * sign[None, None, :]).flatten(1, 3)
-    scale = levels.resolutions.to(frac.dtype)[:, None, None]
-    derivative = torch.stack([dx, dy, dz], dim=0) * scale  # [3, L, 8, N]
-    encoded = (corners * (wx * wy * wz).flatten(1, 3)).sum(2)  # [F, L, N]
-    jacobian = (corners[None] * derivative[:, None]).sum(3)  # [3, F, L, N]
-    n = x01.shape[0]
-    return encoded.permute(2, 1, 0).reshape(n, -1), jacobian.permute(3, 2, 1, 0).reshape(n, -1, 3)
-
-
 def encode_with_pullback(x01: torch.Tensor, table: torch.Tensor, levels: GridLevels):
     """The encoding ``[n_points, n_levels * F]`` and a function that pulls a derivative with respect
     to it (``[n_points, n_levels * F]``) back to the point (``[n_points, 3]``, d/d x01).
 
-    The same numbers as contracting :func:`encode_with_jacobian`'s Jacobian, without building it: the
-    derivative is first summed over each corner's features, then pushed through the trilinear weights'
-    derivatives (:func:`_frac_gradient`), about half the work. Plain autograd, so the pulled-back
-    derivative is differentiable in ``table`` (an eikonal loss trains the table in one backward)."""
+    A vector-Jacobian product that never builds the Jacobian: the derivative is first summed over
+    each corner's features, then pushed through the trilinear weights' derivatives
+    (:func:`_frac_gradient`: inside a cell, a weight's derivative along an axis is the product of the
+    other two axes' weights, signed). Plain autograd, so the pulled-back derivative is differentiable
+    in ``table`` (an eikonal loss trains the table in one ordinary backward)."""
     indices, frac = _corners(x01, levels)
     corners = _gather(table, indices)  # [F, L, 8, N]
     encoded = (corners * corner_weights(frac)).sum(2)  # [F, L, N]
