@@ -48,6 +48,24 @@ def tiny_config(method: str, scene: Path, out: Path, steps: int = 2, **overrides
     return config
 
 
+def tiny_trained_run(tmp_path_factory, resolution: int = 32, steps: int = 2, with_mesh: bool = True) -> Path:
+    """A ``neus`` run folder trained ``steps`` steps on the mug at ``resolution`` px (its geometric
+    initialisation is a sphere: a surface to export). ``with_mesh=False`` drops the ground-truth mesh from
+    scene.json, so va-eval skips the geometry metrics (a 100k-sample Chamfer: a minute on a busy machine)."""
+    import json
+
+    from va_plugin.data.scenes.builder import build_procedural_scene
+
+    scene = build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=4, resolution=resolution)
+    if not with_mesh:
+        info = json.loads((scene / "scene.json").read_text())
+        info.pop("mesh")
+        (scene / "scene.json").write_text(json.dumps(info))
+    out = tmp_path_factory.mktemp("run")
+    tiny_config("neus", scene, out, steps=steps).setup().train()
+    return out
+
+
 @pytest.fixture
 def no_env_methods(monkeypatch):
     monkeypatch.delenv("VA_PLUGIN_METHODS", raising=False)

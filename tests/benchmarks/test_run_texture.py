@@ -4,19 +4,14 @@ scores, bake counts, a timed bake from more views), resumable, and the summary t
 import json
 
 import pytest
-from conftest import tiny_config
+from conftest import tiny_trained_run
 
 from bench_scripts import load_script
 
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    from va_plugin.data.scenes.builder import build_procedural_scene
-
-    scene = build_procedural_scene(tmp_path_factory.mktemp("scene32"), "mug", n_views=4, resolution=32)
-    out = tmp_path_factory.mktemp("run")
-    tiny_config("neus", scene, out, steps=2).setup().train()
-    return out
+    return tiny_trained_run(tmp_path_factory)
 
 
 def test_scores_field_and_both_fusions_and_resumes(run, tmp_path, capsys):

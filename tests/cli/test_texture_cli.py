@@ -5,7 +5,7 @@ import json
 import numpy as np
 import pytest
 import trimesh
-from conftest import tiny_config
+from conftest import tiny_trained_run
 
 from va_plugin.cli import eval as eval_cli
 from va_plugin.cli import export as export_cli
@@ -13,16 +13,7 @@ from va_plugin.cli import export as export_cli
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    """A 2-step neus run on a 32-px mug (its geometric initialisation is a sphere: a surface to texture)."""
-    from va_plugin.data.scenes.builder import build_procedural_scene
-
-    scene = build_procedural_scene(tmp_path_factory.mktemp("scene32"), "mug", n_views=4, resolution=32)
-    info = json.loads((scene / "scene.json").read_text())
-    info.pop("mesh")  # va-eval then skips the geometry metrics (100k-sample Chamfer: a minute on a busy machine)
-    (scene / "scene.json").write_text(json.dumps(info))
-    out = tmp_path_factory.mktemp("run")
-    tiny_config("neus", scene, out, steps=2).setup().train()
-    return out
+    return tiny_trained_run(tmp_path_factory, with_mesh=False)
 
 
 def one_line_error(capsys, code, message):

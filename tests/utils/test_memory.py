@@ -1,7 +1,7 @@
 """Up-front memory checks: an impossible request is one line naming the largest value that fits."""
 
 import pytest
-from conftest import tiny_config
+from conftest import tiny_trained_run
 
 from va_plugin.cli import eval as eval_cli
 from va_plugin.cli import export as export_cli
@@ -49,12 +49,7 @@ def test_largest_texture_named_is_a_power_of_two_that_fits(eight_gib):
 
 @pytest.fixture(scope="module")
 def run(tmp_path_factory):
-    from va_plugin.data.scenes.builder import build_procedural_scene
-
-    scene = build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=4, resolution=24)
-    out = tmp_path_factory.mktemp("run")
-    tiny_config("neus", scene, out, steps=1).setup().train()
-    return out
+    return tiny_trained_run(tmp_path_factory, resolution=24, steps=1)
 
 
 @pytest.mark.parametrize("main, argv, message", [
