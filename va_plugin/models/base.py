@@ -122,10 +122,6 @@ class Model(nn.Module):
         raise NotImplementedError
 
 
-def optional_tensor(batch: Dict[str, torch.Tensor], key: str) -> Optional[torch.Tensor]:
-    return batch.get(key)
-
-
 def wants_num_views(field_config) -> bool:
     """Whether a field config needs to know the number of training views (view-adaptive wrappers)."""
     return bool(getattr(field_config, "needs_num_views", False))

@@ -15,7 +15,7 @@ from va_plugin.model_components import losses, renderers
 from va_plugin.model_components.neus import SingleVariance, neus_alpha, sdf_band, section_alpha
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
-from va_plugin.models.base import Model, ModelConfig, SceneInfo
+from va_plugin.models.base import Model, ModelConfig, SceneInfo, wants_num_views
 from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
 from va_plugin.utils.stages import stage, timed
 
@@ -72,9 +72,9 @@ class NeuSModel(Model):
     def __init__(self, config: NeuSModelConfig, scene: SceneInfo) -> None:
         super().__init__(config, scene)
         self.field = config.field.setup(num_train_views=scene.num_train_views) \
-            if _wants_views(config.field) else config.field.setup()
+            if wants_num_views(config.field) else config.field.setup()
         if self.field.geometry_kind != "sdf":
-            raise ValueError("NeuSModel needs a field whose geometry is an SDF")
+            raise ConfigError("the neus model needs a field whose geometry is an SDF")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
         if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
@@ -294,7 +294,3 @@ def _scatter_rays(inner: Dict[str, torch.Tensor], index: torch.Tensor, n_rays: i
         out[key] = full.index_put((index,), value)
     return out
 
-
-def _wants_views(field_config) -> bool:
-    """Whether a field config needs to know the number of training views (view-adaptive wrappers)."""
-    return bool(getattr(field_config, "needs_num_views", False))
