@@ -59,3 +59,15 @@ def test_empty_input_keeps_a_graph():
 def test_bad_bound_is_a_config_error():
     with pytest.raises(ConfigError, match="bound"):
         DensityField(DensityFieldConfig(bound=-1.0))
+
+
+def test_density_field_can_open_its_levels_coarse_to_fine():
+    from va_plugin.fields.density_field import DensityFieldConfig
+
+    assert DensityFieldConfig().setup().encoding.n_active_levels == 12  # default: every level from the start
+    field = DensityFieldConfig(start_levels=3, coarse_to_fine_fraction=0.5).setup()
+    assert field.encoding.n_active_levels == 3
+    field.update_step(25, 100)
+    assert 3 < field.encoding.n_active_levels < 12
+    field.update_step(50, 100)
+    assert field.encoding.n_active_levels == 12

@@ -38,6 +38,18 @@ class HashGridFieldConfig(FieldConfig):
     """Cells per axis of the finest level."""
     bound: float = 1.0
     """The grid covers [-bound, bound]^3; it must hold the scene's bounding sphere."""
+    start_levels: int = 4
+    """Levels open at step 0 when the grid opens coarse to fine; the others open one by one."""
+    coarse_to_fine_fraction: float = 0.0
+    """Share of the step budget after which every level is open (0: all open from the start)."""
+
+    def active_levels(self, step: int, max_steps: int) -> int:
+        """Open levels at ``step``: ``start_levels``, then linearly more until every level is open at
+        ``coarse_to_fine_fraction * max_steps``."""
+        span = self.coarse_to_fine_fraction * max_steps
+        if span <= 0 or step >= span:
+            return self.n_levels
+        return min(self.n_levels, self.start_levels + int((self.n_levels - self.start_levels) * step / span))
 
     def make_encoding(self):
         """The field's :class:`HashGridEncoding` (a one-line error for a bound that is not positive)."""
@@ -46,9 +58,15 @@ class HashGridFieldConfig(FieldConfig):
 
         if self.bound <= 0:
             raise ConfigError(f"field.bound must be positive, got {self.bound}")
-        return HashGridEncoding(n_levels=self.n_levels, n_features_per_level=self.features_per_level,
-                                log2_hashmap_size=self.log2_hashmap_size, base_resolution=self.base_resolution,
-                                max_resolution=self.max_resolution, bound=self.bound)
+        if not 0 <= self.start_levels <= self.n_levels:
+            raise ConfigError(f"field.start_levels must be in [0, {self.n_levels}], got {self.start_levels}")
+        if not 0.0 <= self.coarse_to_fine_fraction <= 1.0:
+            raise ConfigError(f"field.coarse_to_fine_fraction must be in [0, 1], got {self.coarse_to_fine_fraction}")
+        encoding = HashGridEncoding(n_levels=self.n_levels, n_features_per_level=self.features_per_level,
+                                    log2_hashmap_size=self.log2_hashmap_size, base_resolution=self.base_resolution,
+                                    max_resolution=self.max_resolution, bound=self.bound)
+        encoding.set_active_levels(self.active_levels(0, 1))
+        return encoding
 
 
 class Field(nn.Module):

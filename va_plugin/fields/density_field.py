@@ -81,6 +81,9 @@ class DensityField(Field):
         out = self.density_net(self.encoding(positions))
         return out[..., :1], out[..., 1:]
 
+    def update_step(self, step: int, max_steps: int) -> None:
+        self.encoding.set_active_levels(self.config.active_levels(step, max_steps))
+
     def density(self, positions: torch.Tensor) -> torch.Tensor:
         """Activated density ``[..., 1]`` (>= 0)."""
         return trunc_exp(self.geometry(positions)[0])

@@ -39,10 +39,8 @@ class HashSDFFieldConfig(HashGridFieldConfig):
     """A NeuS field on a hash grid: SDF MLP on (x, hash(x)), colour MLP on (feature, normal[, gamma(d)])."""
 
     _target: Type = field(default_factory=lambda: HashSDFField)
-    start_levels: int = 4
-    """Levels open at step 0 (coarse to fine); the others open one by one."""
     coarse_to_fine_fraction: float = 0.3
-    """Share of the step budget after which every level is open (0: all open from the start)."""
+    """Share of the step budget after which every grid level is open (0: all open from the start)."""
     sdf_width: int = 64
     """Hidden width of the SDF MLP."""
     sdf_layers: int = 1
@@ -78,10 +76,6 @@ class HashSDFField(Field):
         if config.sdf_gradient not in SDF_GRADIENT_KINDS:
             raise ConfigError(f"field.sdf_gradient must be one of {', '.join(SDF_GRADIENT_KINDS)}, "
                               f"got {config.sdf_gradient!r}")
-        if not 0 <= config.start_levels <= config.n_levels:
-            raise ConfigError(f"field.start_levels must be in [0, {config.n_levels}], got {config.start_levels}")
-        if not 0.0 <= config.coarse_to_fine_fraction <= 1.0:
-            raise ConfigError(f"field.coarse_to_fine_fraction must be in [0, 1], got {config.coarse_to_fine_fraction}")
         if config.direction_frequencies < -1:
             raise ConfigError("field.direction_frequencies must be -1 (no direction), 0 or a positive count")
         self.config = config
@@ -95,7 +89,6 @@ class HashSDFField(Field):
         self.color_net = MLP(color_in, config.color_width, config.color_layers, 3, out_activation=nn.Sigmoid())
         self.feature_dim = config.color_width
         self._sphere_init()
-        self.encoding.set_active_levels(config.start_levels if config.coarse_to_fine_fraction > 0 else config.n_levels)
 
     def _sphere_init(self) -> None:
         """Start as the SDF of a sphere of ``init_radius``, computed from the raw coordinates while the
@@ -125,16 +118,10 @@ class HashSDFField(Field):
 
     # -- schedule -------------------------------------------------------------------------------
     def active_levels(self, step: int, max_steps: int) -> int:
-        """Open levels at ``step``: ``start_levels``, then linearly more until every level is open
-        at ``coarse_to_fine_fraction * max_steps``."""
-        cfg = self.config
-        span = cfg.coarse_to_fine_fraction * max_steps
-        if span <= 0 or step >= span:
-            return cfg.n_levels
-        return min(cfg.n_levels, cfg.start_levels + int((cfg.n_levels - cfg.start_levels) * step / span) + 1)
+        return self.config.active_levels(step, max_steps)
 
     def update_step(self, step: int, max_steps: int) -> None:
-        self.encoding.set_active_levels(self.active_levels(step, max_steps))
+        self.encoding.set_active_levels(self.config.active_levels(step, max_steps))
 
     def finite_difference_step(self) -> float:
         """Step (world units) of the finite-difference gradient: a fraction of the finest open cell."""
