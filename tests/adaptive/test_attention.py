@@ -37,6 +37,30 @@ def test_fresh_attention_is_the_identity_and_uniform_for_equal_tokens():
     torch.testing.assert_close(alpha, torch.full_like(alpha, 0.25))
 
 
+def test_query_and_key_projections_learn_only_once_the_output_projection_moves():
+    """Phase 3 starts with a zero output projection: on the first step only it gets a gradient (the
+    query/key/value projections get exactly zero, whatever the tokens); one Adam step later it is
+    non-zero and the query and key rows are trained too. Tokens that differ little give attention
+    that differs little from uniform: the logits scale with the tokens' differences."""
+    torch.manual_seed(0)
+    module = ViewAttention(feature_dim=8, attention_dim=8, n_heads=2)
+    tokens = torch.randn(6, 4, 8)
+    target = torch.randn(6, 4, 8)
+    optimizer = torch.optim.Adam(module.parameters(), lr=1e-2)
+    grads = []
+    for _ in range(2):
+        optimizer.zero_grad()
+        fused, _ = module(tokens)
+        ((fused - target) ** 2).mean().backward()
+        grads.append((module.qkv.weight.grad[:16].abs().sum().item(), module.out.weight.grad.abs().sum().item()))
+        optimizer.step()
+    assert grads[0][0] == 0.0 and grads[0][1] > 0  # step 1: only the output projection learns
+    assert grads[1][0] > 0  # step 2: queries and keys receive a gradient
+    near_equal = tokens[:, :1] + 1e-3 * torch.randn(6, 4, 8)
+    _, alpha = module(near_equal)
+    assert (alpha - 0.25).abs().max() < 1e-2
+
+
 def test_huge_features_give_finite_attention_and_gradients():
     module = _randomised(ViewAttention(feature_dim=4, attention_dim=4, n_heads=1))
     tokens = (torch.randn(2, 3, 4) * 1e6).requires_grad_(True)
