@@ -8,9 +8,8 @@ from typing import Tuple, Type
 import torch
 from torch import nn
 
-from va_plugin.errors import ConfigError
 from va_plugin.fields.base import MLP, Field, HashGridFieldConfig
-from va_plugin.fields.encodings.positional import PositionalEncoding
+from va_plugin.fields.encodings.positional import optional_direction_encoding
 
 TRUNC_EXP_MAX = 15.0
 """Largest exponent of :func:`trunc_exp` (exp(15) is about 3.3e6, far above any useful density)."""
@@ -67,10 +66,7 @@ class DensityField(Field):
         self.encoding = config.make_encoding()
         self.density_net = MLP(self.encoding.output_dim, config.hidden_width, config.hidden_layers,
                                1 + config.geo_feature_dim)
-        if config.direction_frequencies < -1:
-            raise ConfigError("field.direction_frequencies must be -1 (no direction), 0 or a positive count")
-        self.direction_encoding = (PositionalEncoding(3, config.direction_frequencies)
-                                   if config.direction_frequencies >= 0 else None)
+        self.direction_encoding = optional_direction_encoding(config.direction_frequencies)
         direction_dim = self.direction_encoding.output_dim if self.direction_encoding is not None else 0
         self.color_net = MLP(direction_dim + config.geo_feature_dim, config.color_width,
                              config.color_layers, 3, out_activation=nn.Sigmoid())

@@ -21,13 +21,11 @@ from torch import nn
 
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import MLP, Field, HashGridFieldConfig
-from va_plugin.fields.encodings.positional import PositionalEncoding
+from va_plugin.fields.encodings.hash_grid import CPU_CHUNK_POINTS
+from va_plugin.fields.encodings.positional import optional_direction_encoding
 from va_plugin.fields.sdf_field import mlp_with_input_gradient
 
 SDF_GRADIENT_KINDS = ("analytic", "finite_difference")
-
-CHUNK_POINTS = 16384
-"""Points per chunk of the gradient-free analytic path (rendering): temporaries stay cache-sized."""
 
 # Vertices of a regular tetrahedron: sum_k v_k f(x + e v_k) / (4 e) is a second-order estimate of
 # grad f(x) from four evaluations (central differences need six).
@@ -76,14 +74,11 @@ class HashSDFField(Field):
         if config.sdf_gradient not in SDF_GRADIENT_KINDS:
             raise ConfigError(f"field.sdf_gradient must be one of {', '.join(SDF_GRADIENT_KINDS)}, "
                               f"got {config.sdf_gradient!r}")
-        if config.direction_frequencies < -1:
-            raise ConfigError("field.direction_frequencies must be -1 (no direction), 0 or a positive count")
         self.config = config
         self.encoding = config.make_encoding()
         self.sdf_net = MLP(3 + self.encoding.output_dim, config.sdf_width, config.sdf_layers,
                            1 + config.geo_feature_dim, activation=nn.Softplus(beta=config.softplus_beta))
-        self.direction_encoding = (PositionalEncoding(3, config.direction_frequencies)
-                                   if config.direction_frequencies >= 0 else None)
+        self.direction_encoding = optional_direction_encoding(config.direction_frequencies)
         color_in = config.geo_feature_dim + (3 if config.use_normal else 0) + \
             (self.direction_encoding.output_dim if self.direction_encoding is not None else 0)
         self.color_net = MLP(color_in, config.color_width, config.color_layers, 3, out_activation=nn.Sigmoid())
@@ -146,11 +141,11 @@ class HashSDFField(Field):
         if self.config.sdf_gradient == "finite_difference":
             return self._finite_difference(positions)
         flat = positions.reshape(-1, 3)
-        if torch.is_grad_enabled() or flat.shape[0] <= CHUNK_POINTS:
+        if torch.is_grad_enabled() or flat.device.type != "cpu" or flat.shape[0] <= CPU_CHUNK_POINTS:
             out, gradient = self._sdf_and_gradient(flat)
-        else:  # rendering many points: cache-sized chunks, nothing recorded
-            parts = [self._sdf_and_gradient(flat[start:start + CHUNK_POINTS])
-                     for start in range(0, flat.shape[0], CHUNK_POINTS)]
+        else:  # rendering many points on CPU: the grid's cache-sized chunks, nothing recorded
+            parts = [self._sdf_and_gradient(flat[start:start + CPU_CHUNK_POINTS])
+                     for start in range(0, flat.shape[0], CPU_CHUNK_POINTS)]
             out, gradient = torch.cat([p[0] for p in parts]), torch.cat([p[1] for p in parts])
         lead = positions.shape[:-1]
         return out[:, :1].reshape(*lead, 1), out[:, 1:].reshape(*lead, out.shape[-1] - 1), gradient.reshape(*lead, 3)

@@ -2,8 +2,12 @@
 
 from __future__ import annotations
 
+from typing import Optional
+
 import torch
 from torch import nn
+
+from va_plugin.errors import ConfigError
 
 
 class PositionalEncoding(nn.Module):
@@ -46,3 +50,11 @@ class PositionalEncoding(nn.Module):
         scaled = x[..., None, :] * freqs
         out = ((g_sin * torch.cos(scaled) - g_cos * torch.sin(scaled)) * freqs).sum(-2)
         return out + grad_encoding[..., :d] if self.include_input else out
+
+
+def optional_direction_encoding(frequencies: int) -> Optional[PositionalEncoding]:
+    """A colour network's view-direction encoding from its config value: -1 leaves the direction out
+    (None), 0 feeds the raw direction, k > 0 adds k frequency bands."""
+    if frequencies < -1:
+        raise ConfigError("field.direction_frequencies must be -1 (no direction), 0 or a positive count")
+    return PositionalEncoding(3, frequencies) if frequencies >= 0 else None
