@@ -38,24 +38,30 @@ METHOD_OF = {method: (backbone, adaptive) for backbone, pair in BACKBONES.items(
 
 def add_arguments(parser) -> None:
     parser.add_argument("--variants", default="neus,neus:mlp",
-                        help="comma-separated METHOD or METHOD:PRESET (default neus,neus:mlp: the hash-grid "
-                             "NeuS against the positional-encoding NeuS that was the default before it)")
+                        help="comma-separated METHOD[:PRESET][@KEY=VALUE...] (default neus,neus:mlp: the "
+                             "hash-grid NeuS against the positional-encoding NeuS that was the default before "
+                             "it); each @KEY=VALUE is a --set override of that variant alone")
     parser.add_argument("--levels", default=None, help="comma-separated inconsistency levels (default 0,2)")
     parser.add_argument("--budgets", default="1",
                         help="comma-separated multiples of each variant's default step budget (e.g. 1,2,4)")
 
 
-def parse_variants(text: str) -> List[Tuple[str, str]]:
-    """``METHOD[:PRESET],...`` -> [(method, preset or "")], checked against the registry."""
+def parse_variants(text: str) -> List[Tuple[str, str, Tuple[str, ...]]]:
+    """``METHOD[:PRESET][@KEY=VALUE...],...`` -> [(method, preset or "", overrides)], checked against the
+    registry; each ``@KEY=VALUE`` is a ``--set`` override of that variant only."""
     variants = []
     for item in comma_list(text):
-        method, _, preset = item.partition(":")
+        head, *overrides = item.split("@")
+        for override in overrides:
+            if "=" not in override:
+                raise ConfigError(f"--variants: {item!r}: an override after '@' reads KEY=VALUE, got {override!r}")
+        method, _, preset = head.partition(":")
         if method not in METHOD_OF:
             raise ConfigError(f"--variants: unknown method {method!r}; known: {', '.join(METHOD_OF)}")
         spec = get_method(method)
         if preset and preset not in spec.presets:
             raise ConfigError(f"--variants: {method} has no preset {preset!r}; it has {', '.join(spec.presets)}")
-        variants.append((method, preset))
+        variants.append((method, preset, tuple(overrides)))
     if not variants:
         raise ConfigError("--variants is empty")
     return variants
@@ -70,15 +76,15 @@ def plan(preset, args, sources: List[str]) -> List[RowSpec]:
     for level in axis_values(args.levels, (0, 2)):
         for source in sources:
             scene = scene_of(source, preset, args.seed, level=level)
-            for method, method_preset in variants:
+            for method, method_preset, overrides in variants:
                 backbone, adaptive = METHOD_OF[method]
                 default_steps = preset.steps.get(backbone) or get_method(method).make_config(
                     method_preset or None).max_steps
                 for budget in budgets:
                     label = method + (f":{method_preset}" if method_preset else "") + \
-                        ("" if budget == 1 else f" x{budget:g}")
+                        "".join(f"@{o}" for o in overrides) + ("" if budget == 1 else f" x{budget:g}")
                     rows.append(RowSpec("backbone", scene, backbone, bool(adaptive), variant=label,
-                                        method_preset=method_preset or None,
+                                        overrides=overrides, method_preset=method_preset or None,
                                         steps=max(1, int(round(default_steps * budget)))))
     return rows
 

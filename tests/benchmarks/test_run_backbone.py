@@ -55,7 +55,14 @@ def test_report_has_level_tables_and_budget_check(smoke_out):
     (["--variants", "nope"], "unknown method"),
     (["--variants", "neus:nope"], "has no preset"),
     (["--budgets", "0"], "positive"),
+    (["--variants", "neus@smoothness_weight"], "KEY=VALUE"),
 ])
 def test_bad_flags(backbone, tmp_path, flags, message, capsys):
     assert backbone.main(["--preset", "smoke", "--out", str(tmp_path / "o"), *flags]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_variant_overrides_reach_their_row_only(backbone):
+    variants = backbone.parse_variants("neus,neus:fast@pipeline.model.smoothness_weight=0.1@max_steps=7")
+    assert variants == [("neus", "", ()),
+                        ("neus", "fast", ("pipeline.model.smoothness_weight=0.1", "max_steps=7"))]

@@ -12,7 +12,7 @@ from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
-from va_plugin.model_components.neus import SingleVariance, neus_alpha, sdf_band, section_alpha
+from va_plugin.model_components.neus import SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo, wants_num_views
@@ -64,6 +64,15 @@ class NeuSModelConfig(ModelConfig):
     it off."""
     cos_anneal_fraction: float = 0.1
     """Share of the step budget over which the cosine term is annealed (0: no annealing)."""
+    smoothness_weight: float = 0.0
+    """Weight of the normal-smoothness prior (0 turns it off): at up to ``smoothness_points`` points
+    where training rays meet the surface (their expected depth, rays with opacity above one half), the
+    mean 1 - cos between the SDF's normal there and at a point ``smoothness_radius`` away in a random
+    direction. It flattens dents in flat faces that four views cannot see."""
+    smoothness_radius: float = 0.01
+    """Scale of the random step of the smoothness prior (scene units; the object fits a sphere of 1)."""
+    smoothness_points: int = 256
+    """Most surface points per batch the smoothness prior is evaluated at."""
 
 
 class NeuSModel(Model):
@@ -168,6 +177,11 @@ class NeuSModel(Model):
             t_mid = 0.5 * (fine[:, 1:] + fine[:, :-1])
             keep = sdf_band(edges, sdf_coarse, t_mid, self.variance.inv_s().detach(), self.config.skip_margin)
         inner = self._render(sub, fine, keep)
+        if self.training and self.config.smoothness_weight > 0:
+            opacity = inner["accumulation"].detach()
+            depth = inner["depth"].detach()
+            inner["surface_points"] = sub.origins + sub.directions * depth
+            inner["surface_valid"] = opacity[:, 0] > 0.5
         if self.training:
             self.samples_per_ray = inner["weights"].numel() / max(n_rays, 1)
             self.probed_per_ray = (edges.shape[1] * n_rays + self._upsample_probes() * len(sub)) / max(n_rays, 1)
@@ -239,10 +253,30 @@ class NeuSModel(Model):
             loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
         if cfg.normal_weight > 0 and "normal" in batch:
             loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
+        if cfg.smoothness_weight > 0 and "surface_points" in outputs:
+            loss["smoothness"] = cfg.smoothness_weight * self._smoothness(outputs)
         extra = getattr(self.field, "extra_losses", None)
         if extra is not None:
             loss.update(extra(outputs))
         return self.apply_extra_losses(loss, outputs, batch)
+
+    def _smoothness(self, outputs) -> torch.Tensor:
+        """The normal-smoothness prior at (a random subset of) the batch's surface points."""
+        points = outputs["surface_points"][outputs["surface_valid"]]
+        if points.shape[0] > self.config.smoothness_points:
+            points = points[torch.randperm(points.shape[0], device=points.device)[: self.config.smoothness_points]]
+        step = torch.randn_like(points) * self.config.smoothness_radius
+        both = torch.cat([points, points + step])
+        gradients = self._sdf_gradient(both)
+        return normal_smoothness(gradients[: len(points)], gradients[len(points):])
+
+    def _sdf_gradient(self, points: torch.Tensor) -> torch.Tensor:
+        """The SDF's gradient at ``points [n, 3]`` with a graph to train from, by the model's gradient path."""
+        if self.sdf_gradient == "analytic":
+            return self.field.geometry_and_gradient(points)[2]
+        points = points.detach().requires_grad_(True)
+        sdf = self.field.geometry(points)[0]
+        return torch.autograd.grad(sdf, points, torch.ones_like(sdf), create_graph=True)[0]
 
     def get_metrics_dict(self, outputs, batch) -> Dict[str, float]:
         mse = ((outputs["rgb"].detach() - batch["rgb"]) ** 2).mean()
