@@ -28,7 +28,8 @@ def neus_config() -> TrainerConfig:
             model=NeuSModelConfig(field=HashSDFFieldConfig(), n_samples=32, n_importance=32, up_sample_steps=2),
         ),
         # inv_s = exp(10 v): at the grid's rate it swings 10% a step early on; NeuS trains it slower
-        optimizers={"fields": OptimizerConfig(lr=1e-2), "variance": OptimizerConfig(lr=1e-3)},
+        optimizers={"fields": OptimizerConfig(lr=1e-2), "variance": OptimizerConfig(lr=1e-3),
+                    "camera_opt": OptimizerConfig(lr=1e-3)},  # used when pipeline.model.camera_opt.mode is on
         scheduler=SchedulerConfig(warmup_steps=100, final_fraction=0.05),
         max_steps=1000,
     )

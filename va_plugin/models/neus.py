@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Type
 
@@ -12,6 +13,7 @@ from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
+from va_plugin.model_components.camera_opt import CameraOptimizerConfig
 from va_plugin.model_components.neus import SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
@@ -73,6 +75,8 @@ class NeuSModelConfig(ModelConfig):
     """Scale of the random step of the smoothness prior (scene units; the object fits a sphere of 1)."""
     smoothness_points: int = 256
     """Most surface points per batch the smoothness prior is evaluated at."""
+    camera_opt: CameraOptimizerConfig = dataclasses.field(default_factory=CameraOptimizerConfig)  # "field" is taken
+    """Per-view camera refinement (off by default; its learning rate is the "camera_opt" optimizer group)."""
 
 
 class NeuSModel(Model):
@@ -93,6 +97,9 @@ class NeuSModel(Model):
             ("analytic" if _supports_analytic_gradient(self.field) else "autograd")
         """The gradient path in use (``config.sdf_gradient`` with "auto" resolved)."""
         self.variance = SingleVariance(config.variance_init)
+        self.camera_optimizer = config.camera_opt.setup(num_views=scene.num_train_views) \
+            if config.camera_opt.mode != "off" else None
+        """Per-view camera corrections, or None (then the state dict has no entry for them)."""
         self.samples_per_ray = 0.0
         """Samples per batch ray evaluated with gradients in the last training batch (skipped rays count 0)."""
         self.probed_per_ray = 0.0
@@ -108,14 +115,21 @@ class NeuSModel(Model):
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
         groups = self.field.param_groups()
         groups["variance"] = list(self.variance.parameters())  # inv_s: its own rate (a method config sets it)
+        if self.camera_optimizer is not None:
+            groups["camera_opt"] = list(self.camera_optimizer.parameters())
         return groups
 
     def sharpness(self) -> Optional[float]:
         return float(self.variance.inv_s().detach())
 
     def diagnostics(self) -> Dict[str, float]:
-        return {**super().diagnostics(), "inv_s": self.sharpness(),
-                "samples_per_ray": round(self.samples_per_ray, 3), "probed_per_ray": round(self.probed_per_ray, 3)}
+        out = {**super().diagnostics(), "inv_s": self.sharpness(),
+               "samples_per_ray": round(self.samples_per_ray, 3), "probed_per_ray": round(self.probed_per_ray, 3)}
+        if self.camera_optimizer is not None:
+            summary = self.camera_optimizer.summary()
+            out["camera_max_deg"] = summary["max_rotation_deg"]
+            out["camera_max_shift"] = summary["max_translation"]
+        return out
 
     # -- sampling -------------------------------------------------------------------------------
     @torch.no_grad()
@@ -157,6 +171,8 @@ class NeuSModel(Model):
 
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+        if self.camera_optimizer is not None:  # training views' rays, as refined; novel views unchanged
+            ray_bundle = self.camera_optimizer.apply(ray_bundle)
         nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions,
                                                  self.scene.scene_radius)
         ray_bundle.nears, ray_bundle.fars = nears, fars
@@ -253,6 +269,8 @@ class NeuSModel(Model):
             loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
         if cfg.normal_weight > 0 and "normal" in batch:
             loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
+        if self.camera_optimizer is not None:
+            loss["camera_opt"] = self.camera_optimizer.loss()
         if cfg.smoothness_weight > 0 and "surface_points" in outputs:
             loss["smoothness"] = cfg.smoothness_weight * self._smoothness(outputs)
         extra = getattr(self.field, "extra_losses", None)
