@@ -317,3 +317,13 @@ def test_mean_canonical_with_partial_fusion_is_refused_for_training(tiny_scene, 
                                                        "pipeline.model.field.fused_samples_per_ray": 0})
     _trainer("va-ngp", tiny_scene, tmp_path / "c", **{"pipeline.model.field.canonical": "mean",
                                                        "pipeline.model.field.fusion": "false"})
+
+
+@pytest.mark.parametrize("base", ["neus", "ngp"])
+def test_the_wrapper_passes_only_named_queries_to_its_base(base, tiny_scene, tmp_path):
+    field = _trainer(f"va-{base}", tiny_scene, tmp_path / "run", steps=1).model.field
+    for name in ViewAdaptiveField.BASE_PASSTHROUGH:
+        assert hasattr(field, name) == hasattr(field.base, name), name
+    assert hasattr(field.base, "encoding") and not hasattr(field, "encoding")  # no accidental passthrough
+    with pytest.raises(AttributeError):
+        field.no_such_attribute

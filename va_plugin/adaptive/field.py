@@ -149,7 +149,6 @@ class ViewAdaptiveField(Field):
         self.register_load_state_dict_post_hook(lambda module, _: module._refresh_phase())
         self.register_buffer("attention_sum", torch.zeros(num_train_views, num_train_views))
         self.register_buffer("attention_mass", torch.zeros(()))
-        self._last_alpha: Optional[tuple] = None
         self.adaptive_share = 0.0
         """Share of the last training batch's samples that took the branch/attention path."""
         self.fused_share = 0.0
@@ -186,18 +185,26 @@ class ViewAdaptiveField(Field):
     def decode_color(self, features: torch.Tensor) -> torch.Tensor:
         return self.base.decode_color(features)
 
+    BASE_PASSTHROUGH = frozenset({"geometry_and_gradient", "sdf", "density", "bound"})
+    """The base field's backbone-specific queries the wrapper answers too (NeuS's analytic SDF gradient,
+    NGP's bound check), when the base field has them: ``hasattr(wrapper, name)`` is ``hasattr(base, name)``
+    for these names and false for any other name the wrapper lacks."""
+
     def __getattr__(self, name: str):
-        # backbone-specific queries (sdf(), density(), ...) go to the wrapped field
         try:
-            return super().__getattr__(name)
+            return super().__getattr__(name)  # parameters, buffers and submodules
         except AttributeError:
-            return getattr(super().__getattr__("base"), name)
+            if name in ViewAdaptiveField.BASE_PASSTHROUGH:
+                return getattr(super().__getattr__("base"), name)
+            raise
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
               weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
         """RGB ``[..., 3]`` of samples; training rays (``camera_indices >= 0``) use their view's
         f_fused,i, novel-view rays (-1) the canonical feature. While fusion trains, the per-sample
-        regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along.
+        regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along, with the attention of
+        the samples that went through it (``va_attention``, ``[A, n, n]``, and their rendering weights
+        ``va_attention_weights`` ``[A]`` when known) for :meth:`extra_losses`.
 
         Given the samples' rendering ``weights``, only samples weighing more than
         ``min_sample_weight`` go through the branches and the attention; the others (empty space,
@@ -208,95 +215,100 @@ class ViewAdaptiveField(Field):
 
         With ``also_canonical`` set (the diagnostics do), ``rgb_canonical`` comes along: the canonical
         colour of the same samples, so one render pass gives both a view's own and its canonical image."""
-        out = self._color(positions, directions, normals, geo_features, camera_indices, weights, ray_indices)
-        if self.also_canonical and "rgb_canonical" not in out:
-            out["rgb_canonical"] = out["rgb"]
-        return out
-
-    def _color(self, positions, directions, normals, geo_features, camera_indices,
-               weights, ray_indices=None) -> Dict[str, torch.Tensor]:
         shared = self.base.color_features(positions, directions, normals, geo_features)
-        cfg = self.config
-        if not self.branches_active():
-            return {"rgb": self.base.decode_color(shared)}
+        mode = self._mode()
+        if not mode.branches:
+            return with_canonical({"rgb": self.base.decode_color(shared)}, mode)
         lead, d = shared.shape[:-1], shared.shape[-1]
         flat = shared.reshape(-1, d)
-        if camera_indices is None:
-            views = torch.full((flat.shape[0],), -1, dtype=torch.long, device=flat.device)
+        views = flat_views(camera_indices, flat.shape[0], flat.device)
+        if mode.canonical_shared and bool((views < 0).all()):
+            return with_canonical({"rgb": self.base.decode_color(shared)}, mode)
+        if weights is None or mode.min_sample_weight <= 0:
+            out = self._every_sample(flat, views, mode)
         else:
-            views = camera_indices.reshape(-1).to(flat.device)
-        if cfg.canonical == "shared" and bool((views < 0).all()):
-            return {"rgb": self.base.decode_color(shared)}
-        if weights is None or cfg.min_sample_weight <= 0:
-            out = self._adaptive(flat, views, None)
-            if self.also_canonical and cfg.canonical == "shared":
-                out["rgb_canonical"] = self.base.decode_color(flat)
-            return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
-        flat_weights = weights.reshape(-1)
-        active = flat_weights > cfg.min_sample_weight
-        if cfg.canonical == "shared":
-            active &= views >= 0
-        own_only = None
-        if (self.fusion_active() and cfg.fused_samples_per_ray > 0
-                and ray_indices is not None):
-            heavy = heaviest_per_ray(flat_weights, ray_indices.reshape(-1).to(flat.device),
-                                     cfg.fused_samples_per_ray)
-            own_only = active & ~heavy & (views >= 0)
-            active &= ~own_only
-        index = active.nonzero().squeeze(-1)
-        if self.training:
-            share = index.numel() / max(flat.shape[0], 1)
-            self.fused_share = share if self.fusion_active() else 0.0
-            self.adaptive_share = share if own_only is None else share + int(own_only.sum()) / max(flat.shape[0], 1)
-        sub = self._adaptive(flat[index], views[index], flat_weights[index])
+            flat_weights = weights.reshape(-1)
+            rays = None if ray_indices is None else ray_indices.reshape(-1).to(flat.device)
+            routes = route_samples(flat_weights, views, rays, mode)
+            out = self._routed(flat, views, flat_weights, routes, mode)
+            if mode.training:
+                self.adaptive_share, self.fused_share = routes.shares(mode)
+        out = {k: v if k.startswith("va_attention") else v.reshape(lead + v.shape[1:]) for k, v in out.items()}
+        return with_canonical(out, mode)
+
+    def _mode(self) -> "ColorMode":
+        """The switches of this query, read once."""
+        cfg = self.config
+        return ColorMode(branches=self.branches_active(), fusion=self.fusion_active(), training=self.training,
+                         canonical_shared=cfg.canonical == "shared", also_canonical=self.also_canonical,
+                         min_sample_weight=cfg.min_sample_weight,
+                         fused_samples_per_ray=cfg.fused_samples_per_ray if self.fusion_active() else 0)
+
+    def _every_sample(self, flat: torch.Tensor, views: torch.Tensor, mode: "ColorMode") -> Dict[str, torch.Tensor]:
+        """Every sample ``[S, D]`` takes the adaptive path (no rendering weights, or no culling)."""
+        out = self._adaptive(flat, views, None, mode)
+        if mode.also_canonical and mode.canonical_shared:
+            out["rgb_canonical"] = self.base.decode_color(flat)
+        return out
+
+    def _routed(self, flat: torch.Tensor, views: torch.Tensor, weights: torch.Tensor, routes: "SampleRoutes",
+                mode: "ColorMode") -> Dict[str, torch.Tensor]:
+        """The shared colour everywhere, overwritten where ``routes`` send a sample down the adaptive path
+        (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``)."""
+        index = routes.adaptive
+        sub = self._adaptive(flat[index], views[index], weights[index], mode)
         base_rgb = self.base.decode_color(flat)
         rgb = base_rgb.index_copy(0, index, sub.pop("rgb"))
-        if own_only is not None:
-            own_index = own_only.nonzero().squeeze(-1)
-            own = self.branches.forward_own(flat[own_index], views[own_index])
-            rgb = rgb.index_copy(0, own_index, self.base.decode_color(own))
+        if routes.own_only is not None:
+            own = routes.own_only
+            rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(flat[own], views[own])))
         out = {"rgb": rgb}
         if "rgb_canonical" in sub:
             out["rgb_canonical"] = base_rgb.index_copy(0, index, sub.pop("rgb_canonical"))
-        elif self.also_canonical and cfg.canonical == "shared":
+        elif mode.also_canonical and mode.canonical_shared:
             out["rgb_canonical"] = base_rgb  # the shared colour is the canonical one
+        for key in ("va_attention", "va_attention_weights"):
+            if key in sub:
+                out[key] = sub.pop(key)
         if sub:  # per-sample regularizers: 0 where not evaluated, averaged over where they were
-            out["va_evaluated"] = active.to(flat.dtype)
+            out["va_evaluated"] = routes.evaluated.to(flat.dtype)
         for key, value in sub.items():
             out[key] = value.new_zeros(flat.shape[0]).index_copy(0, index, value)
-        return {k: v.reshape(lead + v.shape[1:]) for k, v in out.items()}
+        return out
 
-    def _adaptive(self, flat: torch.Tensor, views: torch.Tensor,
-                  weights: Optional[torch.Tensor]) -> Dict[str, torch.Tensor]:
-        """The branch (+ fusion) path on flat features ``[S, D]`` with views ``[S]`` (-1: canonical)."""
-        cfg = self.config
+    def _adaptive(self, flat: torch.Tensor, views: torch.Tensor, weights: Optional[torch.Tensor],
+                  mode: "ColorMode") -> Dict[str, torch.Tensor]:
+        """The branch (+ fusion) path on flat features ``[S, D]`` with views ``[S]`` (-1: canonical) and
+        their rendering weights ``[S]`` (None: unknown): ``rgb [S, 3]``, and as :meth:`color` says."""
         novel = views < 0
         d = flat.shape[-1]
-        fusion = self.fusion_active()
-        if not fusion and not bool(novel.any()) and not self.also_canonical:
+        if not mode.fusion and not bool(novel.any()) and not mode.also_canonical:
             # branches alone: each sample needs only its own view's branch
             return {"rgb": self.base.decode_color(self.branches.forward_own(flat, views))}
         tokens = self.branches.forward_all(flat)  # [S, n, D]
         alpha = None
-        if fusion:
+        if mode.fusion:
             tokens, alpha = self.attention(tokens)
         own = tokens.gather(1, views.clamp_min(0)[:, None, None].expand(-1, 1, d)).squeeze(1)
-        canonical = flat if cfg.canonical == "shared" else tokens.mean(1)
+        canonical = flat if mode.canonical_shared else tokens.mean(1)
         feature = torch.where(novel[:, None], canonical, own)
         out = {"rgb": self.base.decode_color(feature)}
-        if self.also_canonical and cfg.canonical != "shared":
+        if mode.also_canonical and not mode.canonical_shared:
             out["rgb_canonical"] = self.base.decode_color(canonical)
-        if fusion and self.training:
-            if cfg.entropy_weight > 0:
+        if mode.fusion and mode.training:
+            if self.config.entropy_weight > 0:
                 out["va_entropy"] = attention_entropy(alpha)
-            if cfg.consistency_weight > 0:
+            if self.config.consistency_weight > 0:
                 out["va_consistency"] = feature_consistency(tokens)
-            self._last_alpha = (alpha.detach().mean(1), None if weights is None else weights.detach())
+            out["va_attention"] = alpha.detach().mean(1)  # [S, n, n], over the heads
+            if weights is not None:
+                out["va_attention_weights"] = weights.detach()
         return out
 
     # -- losses and diagnostics -------------------------------------------------------------------
     def extra_losses(self, outputs: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
-        """The weighted regularizers of eq. 14, averaged over samples by their rendering weights."""
+        """The weighted regularizers of eq. 14, averaged over samples by their rendering weights; the
+        attention of the batch (``va_attention``) joins the running attention matrix."""
         cfg = self.config
         weights = outputs.get("weights")
         if weights is not None and "va_evaluated" in outputs:  # only where the regularizers were evaluated
@@ -306,17 +318,16 @@ class ViewAdaptiveField(Field):
             losses["entropy"] = cfg.entropy_weight * weighted_mean(outputs["va_entropy"], weights)
         if "va_consistency" in outputs:
             losses["consistency"] = cfg.consistency_weight * weighted_mean(outputs["va_consistency"], weights)
-        self._accumulate_attention(weights)
+        if "va_attention" in outputs:
+            self._accumulate_attention(outputs["va_attention"], outputs.get("va_attention_weights"), weights)
         return losses
 
     @torch.no_grad()
-    def _accumulate_attention(self, weights: Optional[torch.Tensor]) -> None:
-        """Running sum of the attention matrix over training samples, weighted by rendering weight
-        (so it reflects samples on the surface, not in empty space)."""
-        last, self._last_alpha = self._last_alpha, None
-        if last is None:
-            return
-        alpha, sample_weights = last
+    def _accumulate_attention(self, alpha: torch.Tensor, sample_weights: Optional[torch.Tensor],
+                              weights: Optional[torch.Tensor]) -> None:
+        """Running sum of the attention matrix ``alpha [A, n, n]`` over training samples, weighted by
+        rendering weight (so it reflects samples on the surface, not in empty space): the samples' own
+        ``sample_weights [A]``, else the batch's ``weights`` when they are per sample of the same samples."""
         if sample_weights is None and weights is not None and weights.numel() == alpha.shape[0]:
             sample_weights = weights.detach().reshape(-1)
         w = torch.ones_like(alpha[:, 0, 0]) if sample_weights is None else sample_weights.to(alpha.dtype)
@@ -362,6 +373,80 @@ class ViewAdaptiveField(Field):
         if self.fusion_active():
             out["fused_share"] = round(self.fused_share, 4)
         return out
+
+
+@dataclass(frozen=True)
+class ColorMode:
+    """The switches of one colour query, read once from the field's phase, config and flags."""
+
+    branches: bool
+    """The per-view branches are on (phase 2 or 3)."""
+    fusion: bool
+    """The attention fusion is on (phase 3)."""
+    training: bool
+    """The regularizers and the attention record are wanted (train mode)."""
+    canonical_shared: bool
+    """The canonical feature is f_shared (else the mean over views of f_fused,i)."""
+    also_canonical: bool
+    """``rgb_canonical`` is wanted beside ``rgb`` (diagnostics)."""
+    min_sample_weight: float
+    """Samples at most this heavy keep the shared colour."""
+    fused_samples_per_ray: int
+    """Fused samples per ray while fusion is on (0: every visible sample; always 0 without fusion)."""
+
+
+@dataclass(frozen=True)
+class SampleRoutes:
+    """Which flat samples take which colour path (the others keep the shared colour)."""
+
+    adaptive: torch.Tensor
+    """Indices ``[A]`` of the samples that take the adaptive path (fused, in the fusion phase)."""
+    own_only: Optional[torch.Tensor]
+    """Indices ``[B]`` of the visible samples that take their own view's branch alone (fusion phase with
+    ``fused_samples_per_ray > 0``), or None."""
+    evaluated: torch.Tensor
+    """``bool [S]``: the samples of ``adaptive`` as a mask (where the regularizers are evaluated)."""
+
+    def shares(self, mode: ColorMode) -> tuple:
+        """(adaptive share, fused share) of the ``S`` samples: what :meth:`ViewAdaptiveField.diagnostics` logs."""
+        total = max(self.evaluated.shape[0], 1)
+        share = self.adaptive.numel() / total
+        fused = share if mode.fusion else 0.0
+        return (share if self.own_only is None else share + self.own_only.numel() / total), fused
+
+
+def flat_views(camera_indices: Optional[torch.Tensor], n_samples: int, device: torch.device) -> torch.Tensor:
+    """The view of each sample ``[S]`` (long; -1: a novel view) from ``camera_indices [...]`` (None: all novel)."""
+    if camera_indices is None:
+        return torch.full((n_samples,), -1, dtype=torch.long, device=device)
+    return camera_indices.reshape(-1).to(device)
+
+
+def route_samples(weights: torch.Tensor, views: torch.Tensor, ray_indices: Optional[torch.Tensor],
+                  mode: ColorMode) -> SampleRoutes:
+    """Where each sample ``[S]`` goes, from its rendering weight, its view and its ray: samples heavier than
+    ``min_sample_weight`` take the adaptive path (with the shared canonical, only training views' samples:
+    a novel view's canonical colour is the shared one); in the fusion phase with ``fused_samples_per_ray``
+    k > 0 and known rays, only each ray's k heaviest are fused and the ray's other visible samples of a
+    training view take their own branch."""
+    active = weights > mode.min_sample_weight
+    if mode.canonical_shared:
+        active &= views >= 0
+    own_only = None
+    if mode.fused_samples_per_ray > 0 and ray_indices is not None:
+        heavy = heaviest_per_ray(weights, ray_indices, mode.fused_samples_per_ray)
+        own_only = active & ~heavy & (views >= 0)
+        active &= ~own_only
+    return SampleRoutes(adaptive=active.nonzero().squeeze(-1),
+                        own_only=None if own_only is None else own_only.nonzero().squeeze(-1), evaluated=active)
+
+
+def with_canonical(out: Dict[str, torch.Tensor], mode: ColorMode) -> Dict[str, torch.Tensor]:
+    """``out`` with ``rgb_canonical`` when the query wants it and the path gave none: there the
+    colour is the canonical one."""
+    if mode.also_canonical and "rgb_canonical" not in out:
+        out["rgb_canonical"] = out["rgb"]
+    return out
 
 
 def heaviest_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor, k: int) -> torch.Tensor:
