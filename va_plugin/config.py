@@ -29,6 +29,18 @@ class InstantiateConfig:
             raise ConfigError(f"{type(self).__name__} has no _target to build")
         return self._target(self, **kwargs)
 
+    def __setstate__(self, state: dict) -> None:
+        """Unpickling (a checkpoint's config): options added since the run was written take their
+        defaults, so older runs still load, evaluate and export."""
+        self.__dict__.update(state)
+        for item in fields(self):
+            if item.name in state:
+                continue
+            if item.default is not dataclasses.MISSING:
+                setattr(self, item.name, item.default)
+            elif item.default_factory is not dataclasses.MISSING:
+                setattr(self, item.name, item.default_factory())
+
 
 def to_dict(config: Any) -> Any:
     """A JSON-friendly nested dict of a config (targets are written as their qualified names)."""
