@@ -17,6 +17,7 @@ import torch
 import torch.nn.functional as F
 
 from va_plugin.cli.run import load_run
+from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.rays import RayBundle
 
 
@@ -56,7 +57,7 @@ def residuals(pipeline, side: int, sigmas) -> dict:
         mask = F.adaptive_avg_pool2d(dm.masks[view].permute(2, 0, 1)[None, :1].float(), shape) > 0.5
         for sigma in sigmas:
             error = ((blur(render, sigma) - blur(target, sigma)) ** 2).mean(1, keepdim=True)[mask]
-            out[sigma].append(float(-10 * torch.log10(error.mean().clamp_min(1e-10))))
+            out[sigma].append(float(psnr_from_mse(error.mean())))
     return out
 
 

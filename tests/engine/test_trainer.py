@@ -101,3 +101,23 @@ def test_nan_batch_is_skipped_with_one_warning(tiny_scene, tmp_path):
         trainer.train()
     assert trainer.bad_steps == 1
     assert all(torch.isfinite(p).all() for p in trainer.model.parameters())
+
+
+def test_callbacks_get_attributes_not_the_trainer_and_return_learning_rate_factors(tiny_scene, tmp_path):
+    from va_plugin.engine.callbacks import TrainingCallbackAttributes
+
+    trainer = tiny_config("neus", tiny_scene, tmp_path / "run", steps=2).setup()
+    seen = []
+
+    def halve(step, attributes):
+        seen.append(attributes)
+        return {"fields": 0.5}
+
+    trainer.callbacks.append(TrainingCallback(halve, BEFORE_STEP))
+    trainer.run_step()
+    assert isinstance(seen[0], TrainingCallbackAttributes) and seen[0].pipeline is trainer.pipeline
+    assert seen[0].max_steps == 2 and not hasattr(seen[0], "optimizer")
+    lrs = {group["name"]: group["lr"] for group in trainer.optimizer.param_groups}
+    factor = trainer.config.scheduler.factor(0, 2)
+    assert lrs["fields"] == pytest.approx(trainer.config.optimizers["fields"].lr * factor * 0.5)
+    assert trainer.lr_multipliers["fields"] == 0.5

@@ -26,13 +26,11 @@ from torch import nn
 from va_plugin.adaptive.attention import ViewAttention
 from va_plugin.adaptive.branches import ViewBranches
 from va_plugin.adaptive.losses import attention_entropy, feature_consistency, weighted_mean
+from va_plugin.adaptive.phases import (BRANCHES, FUSION, PRETRAIN,
+                                       diagnostics_callback, phase_callback)
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import Field, FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
-
-PRETRAIN, BRANCHES, FUSION = 1, 2, 3
-PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branches", FUSION: "self-attention fusion"}
-
 
 ADAPTIVE_SEED_OFFSET = 7919
 """Added to the run's seed for the stream that initialises the branches and the attention."""
@@ -351,8 +349,6 @@ class ViewAdaptiveField(Field):
         return groups
 
     def training_callbacks(self) -> list:
-        from va_plugin.adaptive.phases import diagnostics_callback, phase_callback
-
         cfg = self.config
         if cfg.canonical == "mean" and cfg.fused_samples_per_ray > 0 and self.attention is not None:
             # checked for training only: a run trained before this option existed still loads

@@ -15,14 +15,19 @@ import json
 import math
 import warnings
 from pathlib import Path
-from typing import Dict, List
+from typing import TYPE_CHECKING, Dict, List
 
 import torch
-from tqdm import tqdm
 
-from va_plugin.adaptive.field import BRANCHES, FUSION, PHASE_NAMES, PRETRAIN, ViewAdaptiveField
-from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
+from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
+from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.rays import RayBundle
+
+if TYPE_CHECKING:  # the field builds its callbacks from here: no import back at run time
+    from va_plugin.adaptive.field import ViewAdaptiveField
+
+PRETRAIN, BRANCHES, FUSION = 1, 2, 3
+PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branches", FUSION: "self-attention fusion"}
 
 RESIDUALS_FILE = "view_residuals.json"
 
@@ -76,17 +81,13 @@ def view_residuals(pipeline, max_pixels: int = 4096, total_pixels: int = 16384,
         rgb = pipeline.model.render_rays(rays, keys=("rgb",))["rgb"]
         target = dm.images[view, rows, cols]
         err = ((rgb - target) ** 2).mean(-1)
-        entry = {"view": view, "psnr": _psnr(err.mean()), "pixels": int(rows.numel())}
+        entry = {"view": view, "psnr": float(psnr_from_mse(err.mean())), "pixels": int(rows.numel())}
         if dm.masks is not None:
             fg = dm.masks[view, rows, cols, 0] > 0.5
             if bool(fg.any()):
-                entry["psnr_foreground"] = _psnr(err[fg].mean())
+                entry["psnr_foreground"] = float(psnr_from_mse(err[fg].mean()))
         results.append(entry)
     return results
-
-
-def _psnr(mse: torch.Tensor) -> float:
-    return float(-10.0 * torch.log10(mse.clamp_min(1e-10)))
 
 
 def inputs_look_consistent(residuals: List[Dict[str, float]], threshold_db: float) -> bool:
@@ -100,74 +101,70 @@ def inputs_look_consistent(residuals: List[Dict[str, float]], threshold_db: floa
     return max(values) - min(values) <= threshold_db
 
 
-def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
-    """The trainer callback that sets the field's phase and the shared field's learning-rate factor."""
+def phase_callback(field: "ViewAdaptiveField") -> TrainingCallback:
+    """The trainer callback that sets the field's phase; it returns the learning-rate factor of the
+    shared field's optimizer groups (``shared_lr_scale`` once the branches train)."""
     cfg = field.config
 
-    def switch(step: int, trainer) -> None:
-        wanted = phase_at(step, trainer.config.max_steps, cfg.pretrain_fraction, cfg.branch_fraction)
+    def switch(step: int, attributes: TrainingCallbackAttributes) -> Dict[str, float]:
+        wanted = phase_at(step, attributes.max_steps, cfg.pretrain_fraction, cfg.branch_fraction)
         if field.branches is None or bool(field.skipped):
             wanted = PRETRAIN
         elif wanted > PRETRAIN and field.current_phase == PRETRAIN and cfg.skip_consistent_scenes:
-            if _decide_skip(field, trainer, step):
+            if _decide_skip(field, attributes, step):
                 wanted = PRETRAIN
         if wanted != field.current_phase:
             field.set_phase(wanted)
-            _announce(trainer, step, f"phase {wanted}: {PHASE_NAMES[wanted]}", phase=wanted)
-        for group in SHARED_GROUPS:  # the shared field and NeuS's inv_s
-            trainer.lr_multipliers[group] = cfg.shared_lr_scale if wanted >= BRANCHES else 1.0
+            attributes.announce(step, f"phase {wanted}: {PHASE_NAMES[wanted]}", phase=wanted)
+        factor = cfg.shared_lr_scale if wanted >= BRANCHES else 1.0
+        return {group: factor for group in SHARED_GROUPS}  # the shared field and NeuS's inv_s
 
     return TrainingCallback(switch, BEFORE_STEP)
 
 
-def diagnostics_callback(field: ViewAdaptiveField) -> TrainingCallback:
+def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
     """After the last step, the attention heat map and the inconsistency maps go to the run folder."""
 
-    def write(step: int, trainer) -> None:
-        if step + 1 != trainer.config.max_steps:
+    def write(step: int, attributes: TrainingCallbackAttributes) -> None:
+        if step + 1 != attributes.max_steps:
             return
         from va_plugin.adaptive.diagnostics import write_diagnostics
 
+        run_dir = attributes.run_dir
         try:
-            written = write_diagnostics(trainer.pipeline, trainer.run_dir, field.config.diagnostics_scale,
-                                        progress=trainer.config.progress)
+            written = write_diagnostics(attributes.pipeline, run_dir, field.config.diagnostics_scale,
+                                        progress=attributes.progress)
         except Exception as exc:  # pictures must never cost the trained run (its checkpoint comes after)
             warnings.warn(f"the diagnostics pictures failed ({type(exc).__name__}: {exc}); the trained run is "
-                          f"kept: retry with va-export diagnostics --load-dir {trainer.run_dir}")
+                          f"kept: retry with va-export diagnostics --load-dir {run_dir}")
             return
         if written:
-            _announce(trainer, step, "diagnostics written: " + ", ".join(Path(p).name for p in written))
+            attributes.announce(step, "diagnostics written: " + ", ".join(Path(p).name for p in written))
 
     return TrainingCallback(write, AFTER_STEP)
 
 
-def _decide_skip(field: ViewAdaptiveField, trainer, step: int) -> bool:
+def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttributes, step: int) -> bool:
     """Measure the per-view residuals once, record them, and say whether to skip the adaptive phases."""
-    residuals = view_residuals(trainer.pipeline)
+    residuals = view_residuals(attributes.pipeline)
     consistent = inputs_look_consistent(residuals, field.config.consistent_residual_db)
     record = {"step": step, "threshold_db": field.config.consistent_residual_db, "consistent": consistent,
               "views": residuals}
-    run_dir = Path(trainer.run_dir)
+    run_dir = Path(attributes.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / RESIDUALS_FILE).write_text(json.dumps(record, indent=2))
     key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
     spread = max(r[key] for r in residuals) - min(r[key] for r in residuals)
     if consistent:
         field.skipped.fill_(True)
-        _announce(trainer, step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB <= "
-                                 f"{field.config.consistent_residual_db} dB): adaptive phases skipped; "
-                                 "force them with skip_consistent_scenes=false", skipped_adaptive=True)
+        attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB <= "
+                                  f"{field.config.consistent_residual_db} dB): adaptive phases skipped; "
+                                  "force them with skip_consistent_scenes=false", skipped_adaptive=True)
     else:
-        _announce(trainer, step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB): adaptive phases on",
-                  residual_spread_db=spread)
+        attributes.announce(step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB): adaptive phases on",
+                            residual_spread_db=spread)
     return consistent
 
 
 SHARED_GROUPS = ("fields", "variance")
 """Optimizer groups of the shared model, slowed by ``shared_lr_scale`` once the branches train."""
-
-
-def _announce(trainer, step: int, message: str, **fields) -> None:
-    if trainer.config.progress:
-        tqdm.write(f"[{trainer.config.method_name}] step {step}: {message}")
-    trainer.log({"step": step, "event": message, **fields})

@@ -1,22 +1,49 @@
-"""Training callbacks: how models and wrappers react to the step without knowing the trainer."""
+"""Training callbacks: how models and wrappers react to the step without knowing the trainer.
+
+A callback gets the step and :class:`TrainingCallbackAttributes` (as nerfstudio's callbacks do): the
+pipeline, the step budget, the run folder and a way to report, never the trainer. What it wants changed
+in the trainer it returns: learning-rate factors by optimizer group."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Callable
+from pathlib import Path
+from typing import Any, Callable, Dict, Optional
 
 BEFORE_STEP = "before_step"
 AFTER_STEP = "after_step"
 
+LearningRateFactors = Optional[Dict[str, float]]
+"""What a callback returns: ``{optimizer group: factor of its learning rate}`` (kept until changed; a
+checkpoint keeps them too), or None for no change."""
+
+
+@dataclass(frozen=True)
+class TrainingCallbackAttributes:
+    """What a callback may read and use."""
+
+    pipeline: Any
+    """The :class:`~va_plugin.pipelines.base.Pipeline`: data manager and model."""
+    max_steps: int
+    """The step budget."""
+    run_dir: Path
+    """The run folder (for files a callback writes)."""
+    progress: bool
+    """Whether the run shows progress (and so may print)."""
+    announce: Callable[..., None]
+    """``announce(step, message, **fields)``: a console line (with progress) and a metrics.jsonl record."""
+
 
 @dataclass
 class TrainingCallback:
-    """Calls ``fn(step, trainer)`` every ``every`` steps, before or after the optimizer step."""
+    """Calls ``fn(step, attributes)`` every ``every`` steps, before or after the optimizer step; ``fn``
+    may return learning-rate factors (:data:`LearningRateFactors`)."""
 
-    fn: Callable[[int, object], None]
+    fn: Callable[[int, TrainingCallbackAttributes], LearningRateFactors]
     where: str = BEFORE_STEP
     every: int = 1
 
-    def __call__(self, step: int, trainer: object) -> None:
+    def __call__(self, step: int, attributes: TrainingCallbackAttributes) -> LearningRateFactors:
         if step % self.every == 0:
-            self.fn(step, trainer)
+            return self.fn(step, attributes)
+        return None

@@ -16,7 +16,7 @@ import torch
 from tqdm import tqdm
 
 from va_plugin.config import InstantiateConfig, to_dict
-from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
+from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError
@@ -132,6 +132,9 @@ class Trainer:
         self.optimizer = self._make_optimizer()
         self.lr_multipliers: Dict[str, float] = {name: 1.0 for name in self.group_names}
         self.callbacks: List[TrainingCallback] = list(self.model.training_callbacks())
+        self.callback_attributes = TrainingCallbackAttributes(
+            pipeline=self.pipeline, max_steps=config.max_steps, run_dir=self.run_dir, progress=config.progress,
+            announce=self.announce)
         self.step = 0
         self.train_seconds = 0.0
         self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"))
@@ -245,6 +248,12 @@ class Trainer:
         with open(self.run_dir / "metrics.jsonl", "a", encoding="utf-8") as handle:
             handle.write(json.dumps(record) + "\n")
 
+    def announce(self, step: int, message: str, **fields: Any) -> None:
+        """An event of the run: a console line (when the run shows progress) and a metrics.jsonl record."""
+        if self.config.progress:
+            tqdm.write(f"[{self.config.method_name}] step {step}: {message}")
+        self.log({"step": step, "event": message, **fields})
+
     def _write_config(self) -> None:
         self.run_dir.mkdir(parents=True, exist_ok=True)
         with open(self.run_dir / "config.json", "w", encoding="utf-8") as handle:
@@ -255,7 +264,9 @@ class Trainer:
     def _run_callbacks(self, where: str) -> None:
         for callback in self.callbacks:
             if callback.where == where:
-                callback(self.step, self)
+                factors = callback(self.step, self.callback_attributes)
+                if factors:
+                    self.lr_multipliers.update(factors)
 
     def _step(self) -> Dict[str, float]:
         self._set_learning_rates(self.step)

@@ -9,18 +9,16 @@ ground truth alike, or background pixels will dominate the score.
 
 from __future__ import annotations
 
-import math
 from typing import Union
 
 import numpy as np
 import torch
 import torch.nn.functional as F
 
+from va_plugin.model_components.losses import psnr_from_mse
+
 ImageLike = Union[torch.Tensor, np.ndarray]
 
-# MSE floor for PSNR: identical images give 10*log10(max_val**2 / 1e-10),
-# i.e. 100 dB for max_val=1, instead of an infinity that poisons averages.
-MSE_FLOOR = 1e-10
 PSNR_CAP_DB = 100.0
 
 # SSIM constants of Wang et al. 2004, with the gaussian window that
@@ -68,8 +66,7 @@ def psnr(pred: ImageLike, gt: ImageLike, max_val: float = 1.0) -> float:
     instead of ``inf``.
     """
     p, g = _check_pair(pred, gt)
-    mse = torch.mean((p - g) ** 2).item()
-    return 10.0 * math.log10(max_val**2 / max(mse, MSE_FLOOR))
+    return float(psnr_from_mse(torch.mean((p - g) ** 2).double(), max_val))
 
 
 def gaussian_kernel_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> torch.Tensor:

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import math
+
 import torch
 
 
@@ -47,6 +49,13 @@ def normal_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
     return (error * valid).sum() / valid.sum().clamp_min(1.0)
 
 
-def psnr_from_mse(mse: torch.Tensor) -> torch.Tensor:
-    """PSNR in dB for images in [0, 1], with the MSE clamped at 1e-10 (so at most 100 dB)."""
-    return -10.0 * torch.log10(mse.clamp_min(1e-10))
+MSE_FLOOR = 1e-10
+"""PSNR's floor on the MSE: identical images score ``10 * log10(max_val**2 / 1e-10)`` (100 dB for images
+in [0, 1]) instead of an infinity that poisons averages."""
+
+
+def psnr_from_mse(mse: torch.Tensor, max_val: float = 1.0) -> torch.Tensor:
+    """PSNR in dB, ``10 * log10(max_val**2 / MSE)``, of images in ``[0, max_val]``, in the MSE's dtype,
+    with the MSE clamped at ``MSE_FLOOR`` (so at most 100 dB for ``max_val=1``). The one PSNR of the
+    package: training logs, evaluation, the consistency check and the benchmarks use it."""
+    return -10.0 * torch.log10(mse.clamp_min(MSE_FLOOR)) + 20.0 * math.log10(max_val)

@@ -8,6 +8,7 @@ from typing import Callable, Dict, List, Optional, Sequence
 import torch
 from torch import nn
 
+from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
 from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.rays import RayBundle
@@ -21,6 +22,8 @@ class SceneInfo:
     scene_radius: float
     background: Sequence[float] = (1.0, 1.0, 1.0)
     max_steps: int = 1000
+    train_cameras: Optional[Cameras] = None
+    """The training views' cameras (the NGP occupancy grid keeps only cells they all see), on the device."""
 
 
 @dataclass

@@ -16,7 +16,7 @@ from typing import Dict, List, Optional, Type
 import torch
 from torch import nn
 
-from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback
+from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.density_field import DensityFieldConfig, trunc_exp
@@ -89,11 +89,10 @@ class NGPModel(Model):
                                               self.config.occupancy_grid.update_every))
         return callbacks
 
-    def _update_occupancy(self, step: int, trainer: object) -> None:
-        grid, fraction = self.occupancy_grid, self.config.occupancy_grid.min_view_fraction
-        if not self._views_marked and fraction > 0:
-            # the training cameras are known to the data manager only, which the trainer holds
-            cameras = trainer.pipeline.datamanager.cameras
+    def _update_occupancy(self, step: int, _attributes: TrainingCallbackAttributes) -> None:
+        grid, fraction, cameras = self.occupancy_grid, self.config.occupancy_grid.min_view_fraction, \
+            self.scene.train_cameras
+        if not self._views_marked and fraction > 0 and cameras is not None:
             grid.restrict_to_views(cameras, max(1, math.ceil(fraction * len(cameras) - 1e-6)))
             self._views_marked = True
         grid.update(step, self.density)

@@ -35,7 +35,8 @@ class Pipeline(nn.Module):
         self.datamanager = config.datamanager.setup(device=device)
         scene = SceneInfo(num_train_views=self.datamanager.num_train_views,
                           scene_radius=self.datamanager.scene_radius,
-                          background=self.datamanager.background, max_steps=max_steps)
+                          background=self.datamanager.background, max_steps=max_steps,
+                          train_cameras=self.datamanager.cameras)
         self.model = config.model.setup(scene=scene).to(device)
 
     def train_step(self, step: int) -> Tuple[Dict[str, torch.Tensor], Dict[str, float]]:
