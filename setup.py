@@ -1,13 +1,13 @@
 """va-plugin: view-adaptive NeRF/NeuS reconstruction from generated multi-view images."""
 
+import runpy
+from pathlib import Path
+
 from setuptools import find_packages, setup
 
-METHODS = [
-    "neus = method_configs.neus:neus",
-    "ngp = method_configs.ngp:ngp",
-    "va-neus = method_configs.va_neus:va_neus",
-    "va-ngp = method_configs.va_ngp:va_ngp",
-]
+# the built-in methods are listed once, in method_configs/__init__.py (a file without imports)
+BUILTIN_METHODS = runpy.run_path(str(Path(__file__).resolve().parent / "method_configs" / "__init__.py"))["BUILTIN_METHODS"]
+METHODS = [f"{name} = {reference}" for name, reference in BUILTIN_METHODS.items()]
 
 setup(
     name="va-plugin",

@@ -53,3 +53,14 @@ def test_presets_change_copies_only():
     fast = spec.make_config("fast")
     assert fast.max_steps < spec.config.max_steps
     assert spec.make_config().max_steps == spec.config.max_steps
+
+
+def test_the_builtin_methods_are_listed_once_and_registered_as_entry_points(no_env_methods):
+    from importlib import metadata
+
+    from method_configs import BUILTIN_METHODS
+
+    registered = {ep.name: ep.value for ep in metadata.entry_points(group="va_plugin.methods")}
+    assert all(registered.get(name) == reference for name, reference in BUILTIN_METHODS.items()), \
+        "reinstall the package (pip install -e .): setup.py registers method_configs.BUILTIN_METHODS"
+    assert set(BUILTIN_METHODS) <= set(discover_methods())

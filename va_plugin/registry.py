@@ -19,6 +19,7 @@ from dataclasses import dataclass, field
 from importlib import metadata
 from typing import Callable, Dict, Optional
 
+from method_configs import BUILTIN_METHODS
 from va_plugin.errors import ConfigError
 
 ENTRY_POINT_GROUP = "va_plugin.methods"
@@ -97,9 +98,7 @@ def _environment_methods() -> Dict[str, MethodSpecification]:
 
 def builtin_methods() -> Dict[str, MethodSpecification]:
     """The methods shipped in ``method_configs`` (also reachable without an installed package)."""
-    from method_configs import BUILTIN_METHODS
-
-    return dict(BUILTIN_METHODS)
+    return {name: _load_reference(reference, "method_configs") for name, reference in BUILTIN_METHODS.items()}
 
 
 def discover_methods() -> Dict[str, MethodSpecification]:
