@@ -31,6 +31,7 @@ from typing import Dict, List, Sequence
 import torch
 
 from va_plugin.cli.train import build_parser, make_config
+from va_plugin.engine.metrics_log import training_records
 from va_plugin.engine.trainer import list_checkpoints
 from va_plugin.registry import discover_methods
 
@@ -85,8 +86,7 @@ def train_and_evaluate(name: str, arguments: List[str], run_dir: Path, image_sca
 
 def summarise_run(run_dir: Path) -> Dict[str, object]:
     """Training time, logged samples per ray and the eval metrics of a finished run."""
-    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines() if line.strip()]
-    train = [r for r in records if "loss" in r]
+    train = training_records(run_dir)
     last = train[-1]
     out: Dict[str, object] = {"steps": last["step"], "train_seconds": last["train_seconds"],
                               "it_per_s_whole_run": round(last["step"] / last["train_seconds"], 3)}

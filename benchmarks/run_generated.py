@@ -32,6 +32,8 @@ import sys
 import time
 from pathlib import Path
 
+from va_plugin.engine.metrics_log import read_records
+
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_ROOT = REPO.parent / "shared" / "data" / "generated"
 
@@ -51,14 +53,7 @@ def find_inputs(root: Path):
 def last_metrics(run_dir: Path) -> dict:
     """The last logged training step and the adaptive-phase events of a run's metrics.jsonl."""
     out = {}
-    path = run_dir / "metrics.jsonl"
-    if not path.is_file():
-        return out
-    for line in path.read_text().splitlines():
-        try:
-            row = json.loads(line)
-        except json.JSONDecodeError:
-            continue
+    for row in read_records(run_dir):
         if "psnr" in row and "event" not in row:
             out["train_psnr"] = row["psnr"]
             out["steps"] = row.get("step")

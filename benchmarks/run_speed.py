@@ -58,6 +58,7 @@ from va_plugin.bench.scenes import SceneSpec, ensure_scene
 from va_plugin.cli.common import cache_dir, friendly_errors
 from va_plugin.cli.train import build_parser as train_parser, make_config
 from va_plugin.config import apply_override
+from va_plugin.engine.metrics_log import training_records
 from va_plugin.engine.trainer import list_checkpoints
 from va_plugin.errors import ConfigError
 from va_plugin.fields.encodings.hash_grid import HashGridEncoding
@@ -150,10 +151,10 @@ def stage_breakdown(trainer, warmup: int, steps: int) -> Dict[str, Any]:
 
 def logged_means(run_dir: Path, keys: Sequence[str]) -> Dict[str, Optional[float]]:
     """Mean over the run's training log lines of each key (None when the method does not log it)."""
-    records = [json.loads(line) for line in (run_dir / "metrics.jsonl").read_text().splitlines() if line.strip()]
+    records = training_records(run_dir)
     out: Dict[str, Optional[float]] = {}
     for key in keys:
-        values = [r[key] for r in records if "loss" in r and key in r]
+        values = [r[key] for r in records if key in r]
         out[key] = round(statistics.fmean(values), 3) if values else None
     return out
 

@@ -18,6 +18,7 @@ from tqdm import tqdm
 from va_plugin.config import InstantiateConfig, to_dict
 from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard
+from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.pipelines.base import Pipeline, PipelineConfig
@@ -224,29 +225,23 @@ class Trainer:
     def _truncate_log(self) -> None:
         """Drop the log lines of steps after the resumed checkpoint (a killed run logged them, the
         resumed run logs them again), so the log reads as one uninterrupted run."""
-        path = self.run_dir / "metrics.jsonl"
-        if not path.is_file():
+        if not (self.run_dir / METRICS_FILE).is_file():
             return
         kept = []
-        for line in path.read_text(encoding="utf-8").splitlines():
+        for entry in read_records(self.run_dir):
             try:
-                entry = json.loads(line)
                 step = int(entry.get("step", 0))
-            except (ValueError, TypeError, AttributeError):
-                continue  # a line cut short by the kill
+            except (ValueError, TypeError):
+                continue
             # events are logged before their step runs (step = steps done), records after it
             if step < self.step or (step == self.step and "event" not in entry):
-                kept.append(line)
-        tmp = path.with_name(path.name + ".tmp")
-        tmp.write_text("".join(line + "\n" for line in kept), encoding="utf-8")
-        os.replace(tmp, path)
+                kept.append(entry)
+        write_records(self.run_dir, kept)
 
     # -- logging --------------------------------------------------------------------------------
     def log(self, record: Dict[str, Any]) -> None:
         """Append one record to the run's metrics.jsonl."""
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.run_dir / "metrics.jsonl", "a", encoding="utf-8") as handle:
-            handle.write(json.dumps(record) + "\n")
+        append_record(self.run_dir, record)
 
     def announce(self, step: int, message: str, **fields: Any) -> None:
         """An event of the run: a console line (when the run shows progress) and a metrics.jsonl record."""
