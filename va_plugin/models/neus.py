@@ -14,6 +14,7 @@ from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
 from va_plugin.model_components.camera_opt import CameraOptimizerConfig
+from va_plugin.model_components.robust import per_ray_mask_error, per_ray_rgb_error, trimmed_mean
 from va_plugin.model_components.neus import SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
@@ -75,6 +76,9 @@ class NeuSModelConfig(ModelConfig):
     """Scale of the random step of the smoothness prior (scene units; the object fits a sphere of 1)."""
     smoothness_points: int = 256
     """Most surface points per batch the smoothness prior is evaluated at."""
+    trim_fraction: float = 0.0
+    """Robust colour and mask losses: each batch drops this share of its rays with the largest error
+    from the loss (0: plain means). For generated views that are wrong in patches."""
     camera_opt: CameraOptimizerConfig = dataclasses.field(default_factory=CameraOptimizerConfig)  # "field" is taken
     """Per-view camera refinement (off by default; its learning rate is the "camera_opt" optimizer group)."""
 
@@ -88,6 +92,8 @@ class NeuSModel(Model):
             if wants_num_views(config.field) else config.field.setup()
         if self.field.geometry_kind != "sdf":
             raise ConfigError("the neus model needs a field whose geometry is an SDF")
+        if not 0.0 <= config.trim_fraction < 1.0:
+            raise ConfigError(f"trim_fraction must be in [0, 1), got {config.trim_fraction}")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
         if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
@@ -262,11 +268,15 @@ class NeuSModel(Model):
 
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
         cfg = self.config
-        loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"], cfg.rgb_loss)}
+        trim = cfg.trim_fraction > 0
+        loss = {"rgb": trimmed_mean(per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss), cfg.trim_fraction)
+                if trim else losses.rgb_loss(outputs["rgb"], batch["rgb"], cfg.rgb_loss)}
         if cfg.eikonal_weight > 0:
             loss["eikonal"] = cfg.eikonal_weight * losses.eikonal_loss(outputs["gradients"], outputs["inside"])
         if cfg.mask_weight > 0 and "mask" in batch:
-            loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
+            loss["mask"] = cfg.mask_weight * (
+                trimmed_mean(per_ray_mask_error(outputs["accumulation"], batch["mask"]), cfg.trim_fraction) if trim
+                else losses.mask_loss(outputs["accumulation"], batch["mask"]))
         if cfg.normal_weight > 0 and "normal" in batch:
             loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
         if self.camera_optimizer is not None:
