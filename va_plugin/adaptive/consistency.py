@@ -1,0 +1,104 @@
+"""Do the input views agree? A silhouette test that needs no training.
+
+With consistent views every foreground pixel of view i looks at a piece of the object, and that piece
+lies inside every other view's silhouette: somewhere along the pixel's ray there is a point that all
+the other masks contain. Generated views break this wherever their shape or pose drifts: the other
+silhouettes carve the pixel's ray empty. :func:`silhouette_support` counts, per view, the foreground
+pixels whose ray finds no such point (the "unsupported" fraction). It looks at the inputs alone, so a
+high-capacity field cannot fit the disagreement away before it is measured (the per-view residual test
+of :mod:`va_plugin.adaptive.phases` could not see it on real inputs), and it costs a fraction of a
+second.
+
+Every other mask is dilated by ``tolerance_px`` pixels first: the masks are thresholded anti-aliased
+alpha and the projection is rounded to the nearest pixel, which together cost up to a pixel at the
+silhouette's edge even for a perfect rig.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import List, Optional
+
+import cv2
+import numpy as np
+import torch
+
+from va_plugin.cameras import Cameras
+from va_plugin.rays import near_far_from_sphere
+
+
+@dataclass
+class SilhouetteSupport:
+    """Per view the share of foreground pixels whose ray no other silhouette supports."""
+
+    unsupported: List[float]
+    pixels: List[int]
+    threshold: float
+
+    @property
+    def worst(self) -> float:
+        return max(self.unsupported, default=0.0)
+
+    @property
+    def consistent(self) -> bool:
+        """True when no view has more than ``threshold`` of its foreground unsupported."""
+        return self.worst <= self.threshold
+
+    def as_dict(self) -> dict:
+        return {"test": "silhouette_support", "consistent": self.consistent, "threshold": self.threshold,
+                "worst_unsupported": round(self.worst, 5),
+                "views": [{"view": k, "unsupported": round(u, 5), "pixels": n}
+                          for k, (u, n) in enumerate(zip(self.unsupported, self.pixels))]}
+
+
+DEFAULT_THRESHOLD = 0.01
+"""Share of a view's foreground that may be unsupported before the views count as disagreeing."""
+
+
+@torch.no_grad()
+def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: float, samples: int = 192,
+                       tolerance_px: int = 1, max_pixels: int = 4096,
+                       threshold: float = DEFAULT_THRESHOLD) -> Optional[SilhouetteSupport]:
+    """The silhouette test of the module docstring on ``masks [n, H, W]`` (bool) seen by ``cameras``.
+
+    Each view's foreground is tested at up to ``max_pixels`` pixels spread evenly over it in scan order
+    (no random draw: the same inputs always give the same answer), each ray at ``samples`` points
+    evenly spaced where it crosses the sphere of ``scene_radius``. None with fewer than two views or
+    an empty mask (there is nothing to compare)."""
+    cameras = cameras.to(torch.device("cpu"))
+    masks = masks.bool().cpu()
+    n_views = len(cameras)
+    if n_views < 2 or not bool(masks.flatten(1).any(-1).all()):
+        return None
+    kernel = np.ones((2 * tolerance_px + 1, 2 * tolerance_px + 1), np.uint8)
+    grown = torch.from_numpy(np.stack([cv2.dilate(m.numpy().astype(np.uint8), kernel) for m in masks])).bool() \
+        if tolerance_px > 0 else masks
+    height, width = masks.shape[1:]
+    fractions, counts = [], []
+    for view in range(n_views):
+        inside = masks[view].reshape(-1).nonzero().squeeze(-1)
+        if inside.numel() > max_pixels:
+            inside = inside[torch.linspace(0, inside.numel() - 1, max_pixels).round().long()]
+        rows, cols = inside // width, inside % width
+        origins, directions = cameras.generate_rays(torch.full_like(rows, view), rows.float(), cols.float())
+        nears, fars, _ = near_far_from_sphere(origins, directions, scene_radius)
+        t = torch.linspace(0.0, 1.0, samples)[None, :]
+        depths = nears + (fars - nears) * t  # [m, s]
+        points = origins[:, None, :] + directions[:, None, :] * depths[..., None]
+        supported = torch.ones(points.shape[:2], dtype=torch.bool)
+        for other in range(n_views):
+            if other == view:
+                continue
+            uv, depth = cameras.project(points.reshape(-1, 3), other)
+            col, row = uv[:, 0].round().long(), uv[:, 1].round().long()
+            in_frame = (col >= 0) & (col < width) & (row >= 0) & (row < height)
+            # beyond the frame: the other view cannot rule the point out
+            seen = torch.ones_like(in_frame)
+            seen[in_frame] = grown[other, row[in_frame], col[in_frame]]
+            supported &= (seen | (depth <= 0)).reshape(supported.shape)
+        hit = (fars > nears)[:, 0]
+        ok = supported.any(-1) & hit
+        fractions.append(1.0 - float(ok.float().mean()))
+        counts.append(int(inside.numel()))
+    return SilhouetteSupport(fractions, counts, threshold)
+
