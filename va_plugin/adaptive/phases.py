@@ -19,6 +19,7 @@ from typing import TYPE_CHECKING, Dict, List
 
 import torch
 
+from va_plugin.adaptive.consistency import silhouette_support
 from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.rays import RayBundle
@@ -145,25 +146,38 @@ def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
 
 
 def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttributes, step: int) -> bool:
-    """Measure the per-view residuals once, record them, and say whether to skip the adaptive phases."""
+    """Measure the per-view residuals and the silhouette support once, record them, and say whether to
+    skip the adaptive phases: only when both say the inputs agree (the residual test alone called real
+    generator outputs consistent: a field can fit their disagreement away; the silhouettes cannot be)."""
     residuals = view_residuals(attributes.pipeline)
-    consistent = inputs_look_consistent(residuals, field.config.consistent_residual_db)
+    residual_ok = inputs_look_consistent(residuals, field.config.consistent_residual_db)
+    support = input_silhouette_support(attributes.pipeline.datamanager)
+    consistent = residual_ok and (support is None or support.consistent)
     record = {"step": step, "threshold_db": field.config.consistent_residual_db, "consistent": consistent,
-              "views": residuals}
+              "residuals_consistent": residual_ok, "views": residuals,
+              "silhouette_support": support.as_dict() if support is not None else None}
     run_dir = Path(attributes.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / RESIDUALS_FILE).write_text(json.dumps(record, indent=2))
     key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
     spread = max(r[key] for r in residuals) - min(r[key] for r in residuals)
+    unsupported = f", silhouettes {100 * support.worst:.2f}% unsupported" if support is not None else ""
     if consistent:
         field.skipped.fill_(True)
         attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB <= "
-                                  f"{field.config.consistent_residual_db} dB): adaptive phases skipped; "
-                                  "force them with skip_consistent_scenes=false", skipped_adaptive=True)
+                                  f"{field.config.consistent_residual_db} dB{unsupported}): adaptive phases "
+                                  "skipped; force them with skip_consistent_scenes=false", skipped_adaptive=True)
     else:
-        attributes.announce(step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB): adaptive phases on",
-                            residual_spread_db=spread)
+        attributes.announce(step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB{unsupported}): "
+                                  "adaptive phases on", residual_spread_db=spread)
     return consistent
+
+
+def input_silhouette_support(datamanager):
+    """:func:`silhouette_support` of the training views' masks (None without masks)."""
+    if datamanager.masks is None:
+        return None
+    return silhouette_support(datamanager.cameras, datamanager.masks[..., 0] > 0.5, datamanager.scene_radius)
 
 
 SHARED_GROUPS = ("fields", "variance")
