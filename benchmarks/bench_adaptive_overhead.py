@@ -24,14 +24,22 @@ from pathlib import Path
 
 import torch
 
-from va_plugin.adaptive.field import BRANCHES, FUSION
+from va_plugin.adaptive.field import BRANCHES, FUSION, backbone_state_in_wrapper
 from va_plugin.adaptive.phases import view_residuals
 from va_plugin.config import apply_override
 from va_plugin.engine.trainer import load_checkpoint
 from va_plugin.registry import get_method
 
 
+PHASE_OVERRIDES = {BRANCHES: ("pipeline.model.field.pretrain_fraction=0", "pipeline.model.field.branch_fraction=1"),
+                   FUSION: ("pipeline.model.field.pretrain_fraction=0", "pipeline.model.field.branch_fraction=0")}
+"""A run that is in that phase from its first step (its phase callback sets it, and the shared field's
+learning-rate factor with it); no consistency check and no pictures."""
+ADAPTIVE_OVERRIDES = ("pipeline.model.field.skip_consistent_scenes=false", "pipeline.model.field.diagnostics_scale=0")
+
+
 def make_trainer(method: str, scene: Path, state: dict, out: Path, overrides=()):
+    """A trainer of ``method`` on ``scene`` starting from a trained backbone's model ``state``."""
     config = get_method(method).make_config()
     config.pipeline.datamanager.dataparser.data = Path(scene)
     config.output_dir, config.progress, config.checkpoint_every = out, False, 10 ** 9
@@ -39,11 +47,8 @@ def make_trainer(method: str, scene: Path, state: dict, out: Path, overrides=())
     for item in overrides:
         apply_override(config, item)
     trainer = config.setup()
-    model_state = state["model"]
+    model_state = backbone_state_in_wrapper(state["model"]) if method.startswith("va-") else state["model"]
     target = trainer.model.state_dict()
-    if method.startswith("va-"):  # the backbone's field lives under field.base
-        model_state = {(k.replace("field.", "field.base.", 1) if k.startswith("field.") else k): v
-                       for k, v in model_state.items()}
     missing = [k for k in model_state if k not in target]
     if missing:
         raise SystemExit(f"checkpoint does not fit {method}: {missing[:3]} ...")
@@ -53,10 +58,8 @@ def make_trainer(method: str, scene: Path, state: dict, out: Path, overrides=())
 
 
 def one_step(trainer) -> float:
-    start = time.perf_counter()
-    trainer._step()
-    trainer.step += 1
-    return time.perf_counter() - start
+    """Seconds of one training step with its callbacks."""
+    return trainer.run_step()[1]
 
 
 def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, steps: int,
@@ -68,10 +71,8 @@ def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, ste
     variants = [("phase2", BRANCHES, ()), ("phase3", FUSION, ())]
     variants += [(f"phase3-k{k}", FUSION, (f"pipeline.model.field.fused_samples_per_ray={k}",)) for k in fused_per_ray]
     for name, phase, overrides in variants:
-        trainer = make_trainer(adaptive, scene, state, out / name, overrides)
-        trainer.model.field.set_phase(phase)
-        trainer.lr_multipliers["fields"] = trainer.model.field.config.shared_lr_scale
-        trainers[name] = trainer
+        trainers[name] = make_trainer(adaptive, scene, state, out / name,
+                                      (*ADAPTIVE_OVERRIDES, *PHASE_OVERRIDES[phase], *overrides))
     times = {name: [] for name in trainers}
     shares = {name: [] for name in trainers if name.startswith("phase3")}
     for r in range(rounds + 1):
@@ -86,7 +87,7 @@ def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, ste
     start = time.perf_counter()
     view_residuals(trainers["phase2"].pipeline)
     check = time.perf_counter() - start
-    field_cfg = trainers["phase3"].model.field.config
+    field_cfg = get_method(adaptive).make_config().pipeline.model.field  # the method's phase fractions
     medians = {name: statistics.median(v) for name, v in times.items()}
     f1, f2 = field_cfg.pretrain_fraction, field_cfg.branch_fraction
     f3 = 1.0 - f1 - f2

@@ -1,8 +1,8 @@
 """What skipping buys (issue 4): ``ngp`` and ``neus`` trained with each kind of skipping on and off.
 
-For every variant below the script trains the method's default run on one scene (``va-train``, in a
-subprocess), evaluates it (``va-eval``: PSNR/SSIM/LPIPS on the held-out views, CD/IoU/F-score of the
-mesh) and reads the samples per ray the model logged. Whole-run iterations per second are noisy on a
+For every variant below the script trains the method's default run on one scene (its ``va-train``
+arguments, trained in this process by ``train_run``), evaluates it (``va-eval`` in a subprocess:
+PSNR/SSIM/LPIPS on the held-out views, CD/IoU/F-score of the mesh) and reads the samples per ray the model logged. Whole-run iterations per second are noisy on a
 shared machine, so it then times the trained runs again side by side: in one process, it continues
 every run for ``--timing-steps`` steps in turn, for ``--timing-rounds`` rounds (the order rotates each
 round), and reports the median seconds per step of each. Everything goes into one JSON file.
@@ -32,7 +32,7 @@ import torch
 
 from va_plugin.cli.train import build_parser, make_config
 from va_plugin.engine.metrics_log import training_records
-from va_plugin.engine.trainer import list_checkpoints
+from va_plugin.engine.trainer import list_checkpoints, train_run
 from va_plugin.registry import discover_methods
 
 NO_GRID = ["--set", "pipeline.model.occupancy_grid.enabled=false"]
@@ -76,9 +76,9 @@ def train_and_evaluate(name: str, arguments: List[str], run_dir: Path, image_sca
         shutil.rmtree(run_dir, ignore_errors=True)
     if (run_dir / "eval.json").is_file():
         return
-    command = [cli("va-train")] + arguments + ["--resume"]
-    print(f"[{name}] training: {' '.join(command)}", flush=True)
-    subprocess.run(command, check=True)
+    print(f"[{name}] training: va-train {' '.join(arguments)} --resume", flush=True)
+    methods = discover_methods()
+    train_run(make_config(build_parser(methods).parse_args(arguments), methods), resume=True)
     print(f"[{name}] evaluating", flush=True)
     subprocess.run([cli("va-eval"), "--load-dir", str(run_dir), "--image-scale", str(image_scale), "--no-progress"],
                    check=True)

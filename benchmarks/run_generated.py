@@ -3,8 +3,8 @@
     python benchmarks/run_generated.py [--data-root ../shared/data/generated] [--out outputs/generated]
         [--methods neus,va-neus] [--inputs aircraft_0,fox] [--steps N] [--threads 2] [--resume]
 
-Each run is the user's command, ``va-train METHOD --data FILE --export-mesh``, with default options
-(format detected, the generator's documented rig). There is no ground truth for generated views, so what
+Each run is the user's command, ``va-train METHOD --data FILE --export-mesh``, with default options,
+trained in this process by ``train_run`` as va-train trains it (format detected, the generator's documented rig). There is no ground truth for generated views, so what
 is recorded is the run time, the last training batch's PSNR (against the generator's own views), the
 rig check (silhouette IoU of the masks' visual hull) and, for ``va-neus``, whether the consistency test
 ran the adaptive phases and the mean inconsistency per view. Writes into OUT:
@@ -25,11 +25,10 @@ from __future__ import annotations
 
 import argparse
 import json
-import os
 import shutil
-import subprocess
 import sys
 import time
+from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 from va_plugin.engine.metrics_log import read_records
@@ -75,25 +74,29 @@ def inconsistency_summary(run_dir: Path):
 
 
 def run_one(method: str, source: Path, run_dir: Path, args) -> float:
-    """Train (or resume) one run with the user's command; returns its wall seconds."""
-    cmd = [sys.executable, "-m", "va_plugin.cli.train", method, "--data", str(source),
-           "--output-dir", str(run_dir), "--no-progress", "--export-mesh",
-           "--set", f"num_threads={args.threads}"]
+    """Train (or resume) one run as ``va-train METHOD --data SOURCE --export-mesh`` would, in this process
+    (output to ``RUN.log`` beside the run folder); returns its wall seconds."""
+    from va_plugin.cli.train import build_parser, make_config
+    from va_plugin.engine.trainer import list_checkpoints, train_run
+    from va_plugin.export.mesh import export_run_mesh
+    from va_plugin.registry import discover_methods
+
+    arguments = [method, "--data", str(source), "--output-dir", str(run_dir), "--no-progress",
+                 "--set", f"num_threads={args.threads}"]
     if args.steps:
-        cmd += ["--steps", str(args.steps)]
+        arguments += ["--steps", str(args.steps)]
     if args.force_adaptive and method.startswith("va-"):
-        cmd += ["--set", "pipeline.model.field.skip_consistent_scenes=false"]
-    if args.resume and (run_dir / "checkpoints").is_dir():
-        cmd.append("--resume")
-    env = dict(os.environ, OMP_NUM_THREADS=str(args.threads))
+        arguments += ["--set", "pipeline.model.field.skip_consistent_scenes=false"]
+    if not args.resume and list_checkpoints(run_dir):
+        raise SystemExit(f"error: {run_dir} already holds checkpoints; pass --resume to continue it")
+    methods = discover_methods()
+    config = make_config(build_parser(methods).parse_args(arguments), methods)
     start = time.perf_counter()
-    with open(run_dir.parent / f"{run_dir.name}.log", "w") as log:
-        proc = subprocess.run(cmd, cwd=REPO, env=env, stdout=log, stderr=subprocess.STDOUT)
-    seconds = time.perf_counter() - start
-    if proc.returncode != 0:
-        raise SystemExit(f"error: {' '.join(cmd)} exited with {proc.returncode}; "
-                         f"see {run_dir.parent / (run_dir.name + '.log')}")
-    return seconds
+    run_dir.mkdir(parents=True, exist_ok=True)
+    with open(run_dir.parent / f"{run_dir.name}.log", "w") as log, redirect_stdout(log), redirect_stderr(log):
+        run = train_run(config, resume=args.resume)
+        export_run_mesh(run.trainer.pipeline, run_dir / "mesh.ply")
+    return time.perf_counter() - start
 
 
 def rig_check(source: Path) -> dict:

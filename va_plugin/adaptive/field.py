@@ -371,6 +371,13 @@ class ViewAdaptiveField(Field):
         return out
 
 
+def backbone_state_in_wrapper(model_state: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
+    """A backbone model's state dict in the layout of its view-adaptive model, whose field holds the
+    backbone's field under ``field.base`` (to start an adaptive model from a trained backbone)."""
+    return {("field.base." + key[len("field."):] if key.startswith("field.") else key): value
+            for key, value in model_state.items()}
+
+
 @dataclass(frozen=True)
 class ColorMode:
     """The switches of one colour query, read once from the field's phase, config and flags."""

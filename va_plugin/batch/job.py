@@ -107,17 +107,11 @@ def _reconstruct(job: ObjectJob) -> Dict[str, Any]:
     import torch
 
     from va_plugin.cli.run import load_run
+    from va_plugin.engine.trainer import train_run
 
     torch.set_num_threads(job.threads)
-    config = train_config(job)
-    trainer = config.setup()
-    resumed_from = trainer.step if trainer.resume() else None
-    try:
-        trainer.train()
-    except KeyboardInterrupt:  # Ctrl-C in a batch run in this process: --resume continues from here
-        trainer.save_checkpoint()
-        raise
-    del trainer
+    # a Ctrl-C in a batch run in this process leaves a checkpoint: --resume continues from there
+    resumed_from = train_run(train_config(job), resume=True).resumed_from
     # what va-export and va-eval see: the run as its last checkpoint holds it
     pipeline, state = load_run(Path(job.run_dir), device=job.options.get("device"))
     mesh, paths = export_mesh(pipeline, job)

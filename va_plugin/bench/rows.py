@@ -29,7 +29,7 @@ import torch
 from va_plugin.bench.presets import BACKBONE_TITLES, BACKBONES, BenchPreset, EvalSettings
 from va_plugin.bench.scenes import SceneSpec, input_error
 from va_plugin.config import apply_override, config_digest
-from va_plugin.engine.trainer import list_checkpoints
+from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints, train_run
 from va_plugin.errors import VAError
 from va_plugin.registry import get_method
 
@@ -161,15 +161,13 @@ def run_row(row: RowSpec, config, scene_dir: Path, evaluation: EvalSettings, row
         shutil.rmtree(run_dir, ignore_errors=True)
         run_dir.mkdir(parents=True)
         marker.write_text(json.dumps({"key": row.key, "fingerprint": row_fingerprint}))
-    trainer = config.setup()
-    resumed_from = trainer.step if resumable and trainer.resume() else None
     try:
-        trainer.train()
-    except KeyboardInterrupt:
-        path = trainer.save_checkpoint()
+        run = train_run(config, resume=resumable)
+    except TrainingInterrupted as interrupt:
         if on_interrupt is not None:
-            on_interrupt(path)
+            on_interrupt(interrupt.checkpoint)
         raise
+    trainer, resumed_from = run.trainer, run.resumed_from
     started = time.perf_counter()
     curve = evaluate_checkpoints(trainer.pipeline, run_dir, scene_dir, evaluation, config.checkpoint_every,
                                  config.max_steps)

@@ -336,3 +336,36 @@ class Trainer:
                 self.save_checkpoint()
         bar.close()
         return record
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Ctrl-C during :func:`train_run`, after the run wrote a checkpoint (``checkpoint``) to resume from."""
+
+    def __init__(self, step: int, checkpoint: Path) -> None:
+        super().__init__(f"interrupted at step {step}; saved {checkpoint}")
+        self.step, self.checkpoint = step, checkpoint
+
+
+@dataclass
+class TrainedRun:
+    """What :func:`train_run` leaves: the trainer (with its pipeline), the last log record, and the step
+    the run resumed from (None for a fresh run)."""
+
+    trainer: Trainer
+    record: Dict[str, Any]
+    resumed_from: Optional[int]
+
+
+def train_run(config: TrainerConfig, resume: bool = True, trainer: Optional[Trainer] = None) -> TrainedRun:
+    """Train a run folder to its budget: the one way every command and benchmark trains a run.
+
+    With ``resume``, the run continues from the newest checkpoint in ``config.output_dir`` when there is
+    one. A Ctrl-C writes a checkpoint and comes out as :class:`TrainingInterrupted` (a KeyboardInterrupt).
+    ``trainer``: one already set up from ``config`` (for a caller that reads it before training)."""
+    trainer = config.setup() if trainer is None else trainer
+    resumed_from = trainer.step if resume and trainer.resume() else None
+    try:
+        record = trainer.train()
+    except KeyboardInterrupt:
+        raise TrainingInterrupted(trainer.step, trainer.save_checkpoint()) from None
+    return TrainedRun(trainer, record, resumed_from)
