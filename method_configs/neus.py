@@ -29,7 +29,8 @@ def neus_config() -> TrainerConfig:
         ),
         # inv_s = exp(10 v): at the grid's rate it swings 10% a step early on; NeuS trains it slower
         optimizers={"fields": OptimizerConfig(lr=1e-2), "variance": OptimizerConfig(lr=1e-3),
-                    "camera_opt": OptimizerConfig(lr=1e-3)},  # used when pipeline.model.camera_opt.mode is on
+                    # used only when pipeline.model.camera_opt / view_deformation are switched on
+                    "camera_opt": OptimizerConfig(lr=1e-3), "view_deformation": OptimizerConfig(lr=1e-3)},
         scheduler=SchedulerConfig(warmup_steps=100, final_fraction=0.05),
         max_steps=1000,
     )

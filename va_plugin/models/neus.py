@@ -14,6 +14,7 @@ from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
 from va_plugin.model_components.camera_opt import CameraOptimizerConfig
+from va_plugin.model_components.view_deformation import ViewDeformationConfig
 from va_plugin.model_components.robust import per_ray_mask_error, per_ray_rgb_error, trimmed_mean
 from va_plugin.model_components.neus import SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha
 from va_plugin.model_components.occupancy_grid import scatter
@@ -81,6 +82,9 @@ class NeuSModelConfig(ModelConfig):
     from the loss (0: plain means). For generated views that are wrong in patches."""
     camera_opt: CameraOptimizerConfig = dataclasses.field(default_factory=CameraOptimizerConfig)  # "field" is taken
     """Per-view camera refinement (off by default; its learning rate is the "camera_opt" optimizer group)."""
+    view_deformation: ViewDeformationConfig = dataclasses.field(default_factory=ViewDeformationConfig)
+    """Per-view deformation of space (off by default; the "view_deformation" optimizer group): view i
+    renders the shared SDF at x + d_i(x), the mesh and novel views use it undeformed."""
 
 
 class NeuSModel(Model):
@@ -106,6 +110,9 @@ class NeuSModel(Model):
         self.camera_optimizer = config.camera_opt.setup(num_views=scene.num_train_views) \
             if config.camera_opt.mode != "off" else None
         """Per-view camera corrections, or None (then the state dict has no entry for them)."""
+        self.view_deformation = config.view_deformation.setup(num_views=scene.num_train_views) \
+            if config.view_deformation.enabled else None
+        """Per-view deformation grids, or None."""
         self.samples_per_ray = 0.0
         """Samples per batch ray evaluated with gradients in the last training batch (skipped rays count 0)."""
         self.probed_per_ray = 0.0
@@ -123,6 +130,8 @@ class NeuSModel(Model):
         groups["variance"] = list(self.variance.parameters())  # inv_s: its own rate (a method config sets it)
         if self.camera_optimizer is not None:
             groups["camera_opt"] = list(self.camera_optimizer.parameters())
+        if self.view_deformation is not None:
+            groups["view_deformation"] = list(self.view_deformation.parameters())
         return groups
 
     def sharpness(self) -> Optional[float]:
@@ -135,6 +144,8 @@ class NeuSModel(Model):
             summary = self.camera_optimizer.summary()
             out["camera_max_deg"] = summary["max_rotation_deg"]
             out["camera_max_shift"] = summary["max_translation"]
+        if self.view_deformation is not None:
+            out["deformation_max"] = round(self.view_deformation.largest(), 5)
         return out
 
     # -- sampling -------------------------------------------------------------------------------
@@ -173,6 +184,8 @@ class NeuSModel(Model):
 
     def _sdf_along(self, ray_bundle: RayBundle, t: torch.Tensor) -> torch.Tensor:
         points = ray_bundle.origins[:, None] + ray_bundle.directions[:, None] * t[..., None]
+        if self.view_deformation is not None:
+            points = self.view_deformation.apply(points, ray_bundle.camera_indices[:, None])
         return self.field.geometry(points)[0][..., 0]
 
     # -- rendering ------------------------------------------------------------------------------
@@ -209,6 +222,12 @@ class NeuSModel(Model):
             self.probed_per_ray = (edges.shape[1] * n_rays + self._upsample_probes() * len(sub)) / max(n_rays, 1)
         return inner if index is None else _scatter_rays(inner, index, n_rays, self.background, blank)
 
+    def _deformed(self, points: torch.Tensor, camera_indices: torch.Tensor) -> torch.Tensor:
+        """Sample points as their view sees the shared field (unchanged without per-view deformation)."""
+        if self.view_deformation is None:
+            return points
+        return self.view_deformation.apply(points, camera_indices)
+
     def _upsample_probes(self) -> int:
         """SDF evaluations per rendered ray of the up-sampling rounds (the last round's samples are
         evaluated only by the rendering pass)."""
@@ -227,14 +246,15 @@ class NeuSModel(Model):
         samples = RaySamples.from_edges(ray_bundle, edges)
         pack = (lambda t: t) if keep is None else (lambda t: t[keep])  # noqa: E731
         unpack = (lambda t: t) if keep is None else (lambda t: scatter(t, keep))  # noqa: E731
+        sample_cameras = pack(samples.camera_indices[:, None].expand(samples.t_mid.shape))
         if self.sdf_gradient == "analytic":  # a graph only while training: evaluation records nothing
             with torch.set_grad_enabled(self.training), stage("sdf_gradient"):
-                positions = pack(samples.positions).detach()
+                positions = self._deformed(pack(samples.positions).detach(), sample_cameras)
                 sdf, geo_features, gradients = self.field.geometry_and_gradient(positions)
         else:
             with torch.enable_grad(), stage("sdf_gradient"):  # the field's forward is timed on its own
                 positions = pack(samples.positions).detach().requires_grad_(True)
-                sdf, geo_features = self.field.geometry(positions)
+                sdf, geo_features = self.field.geometry(self._deformed(positions, sample_cameras))
                 gradients = torch.autograd.grad(sdf, positions, torch.ones_like(sdf),
                                                 create_graph=self.training, retain_graph=True)[0]
         if not self.training:
@@ -246,7 +266,7 @@ class NeuSModel(Model):
         weights = renderers.weights_from_alpha(alpha)
         sample_weights = pack(weights)
         normals = torch.nn.functional.normalize(gradients, dim=-1, eps=1e-6)
-        camera_indices = pack(samples.camera_indices[:, None].expand(alpha.shape))
+        camera_indices = sample_cameras
         ray_indices = pack(torch.arange(alpha.shape[0], device=alpha.device)[:, None].expand(alpha.shape))
         color = self.field.color(positions if self.training else positions.detach(), directions, normals,
                                  geo_features, camera_indices, weights=sample_weights.detach(),
@@ -281,6 +301,8 @@ class NeuSModel(Model):
             loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
         if self.camera_optimizer is not None:
             loss["camera_opt"] = self.camera_optimizer.loss()
+        if self.view_deformation is not None:
+            loss["view_deformation"] = self.view_deformation.loss()
         if cfg.smoothness_weight > 0 and "surface_points" in outputs:
             loss["smoothness"] = cfg.smoothness_weight * self._smoothness(outputs)
         extra = getattr(self.field, "extra_losses", None)
