@@ -29,14 +29,14 @@ class ViewDeformationConfig(InstantiateConfig):
     """Per-view deformation grids (off by default)."""
 
     _target: Type = field(default_factory=lambda: ViewDeformation)
+    frozen_views: Tuple[int, ...] = (0,)
+    """Views rendered without deformation (the generator's conditioning view)."""
     enabled: bool = False
     """Give every training view (except ``frozen_views``) its own deformation of space."""
     resolution: int = 6
     """Grid vertices per axis of each view's displacement grid (at least 2)."""
     bound: float = 1.0
     """The grid covers [-bound, bound]^3; points outside take the border's displacement."""
-    frozen_views: Tuple[int, ...] = (0,)
-    """Views rendered without deformation (the generator's conditioning view)."""
     penalty_weight: float = 1.0
     """Weight of the mean squared displacement (scene units) in the loss."""
 
