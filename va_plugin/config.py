@@ -8,11 +8,16 @@ value to the type of the field it replaces.
 
 from __future__ import annotations
 
+import ast
 import dataclasses
+import functools
+import inspect
 import json
 import math
+import textwrap
 from dataclasses import dataclass, field, fields, is_dataclass
-from typing import Any, Type
+from pathlib import PurePath
+from typing import Any, Dict, List, Tuple, Type
 
 from va_plugin.errors import ConfigError
 
@@ -134,3 +139,55 @@ def apply_override(config: Any, assignment: str) -> None:
 def replace(config: Any, **changes: Any) -> Any:
     """A shallow copy of a dataclass config with some fields changed."""
     return dataclasses.replace(config, **changes)
+
+
+@functools.lru_cache(maxsize=None)
+def field_docstrings(cls: type) -> Dict[str, str]:
+    """The docstring under each field of a dataclass and of its dataclass bases (nerfstudio's habit: a
+    string literal right after the field), by field name; a subclass's text wins."""
+    docs: Dict[str, str] = {}
+    for klass in reversed(cls.__mro__):
+        if not is_dataclass(klass):
+            continue
+        try:
+            tree = ast.parse(textwrap.dedent(inspect.getsource(klass)))
+        except (OSError, TypeError, SyntaxError):  # no source at hand (a frozen or generated class)
+            continue
+        body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
+        for node, after in zip(body, body[1:]):
+            if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
+                    and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
+                    and isinstance(after.value.value, str)):
+                docs[node.target.id] = inspect.cleandoc(after.value.value)
+    return docs
+
+
+def describe_options(config: Any, prefix: str = "") -> List[Tuple[str, Any, str]]:
+    """Every ``--set`` key of a config below ``prefix``: (dotted key, current value, docstring), in the
+    order of the fields; nested configs (and dicts of them, e.g. ``optimizers.fields.lr``) are walked."""
+    rows: List[Tuple[str, Any, str]] = []
+    docs = field_docstrings(type(config))
+    for item in fields(config):
+        if item.name.startswith("_") or not item.repr:  # the target class, internal flags
+            continue
+        value, key = getattr(config, item.name), prefix + item.name
+        if is_dataclass(value) and not isinstance(value, type):
+            rows.extend(describe_options(value, key + "."))
+        elif isinstance(value, dict) and value and all(is_dataclass(v) for v in value.values()):
+            for name, sub in value.items():
+                rows.extend(describe_options(sub, f"{key}.{name}."))
+        else:
+            rows.append((key, value, docs.get(item.name, "")))
+    return rows
+
+
+def format_options(config: Any, width: int = 100) -> str:
+    """:func:`describe_options` as text: ``key = default`` and its docstring indented under it."""
+    lines = []
+    for key, value, doc in describe_options(config):
+        text = str(value) if isinstance(value, (str, PurePath)) else json.dumps(to_dict(value))
+        lines.append(f"{key} = {text}")
+        for paragraph in (doc or "(no description)").split("\n\n"):
+            lines.extend(textwrap.wrap(" ".join(paragraph.split()), width, initial_indent="    ",
+                                       subsequent_indent="    "))
+    return "\n".join(lines) + "\n"

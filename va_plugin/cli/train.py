@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import List, Optional
 
 from va_plugin.cli.common import EXIT_INTERRUPTED, cache_dir, friendly_errors
-from va_plugin.config import apply_override
+from va_plugin.config import apply_override, format_options
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
 from va_plugin.errors import ConfigError
@@ -34,6 +34,9 @@ def build_parser(methods) -> argparse.ArgumentParser:
     parser.add_argument("--export-mesh", action="store_true", help="write mesh.ply into the run folder at the end")
     parser.add_argument("--default-scene-resolution", type=int, default=256,
                         help="image size of the embedded default scene")
+    parser.add_argument("--help-config", action="store_true",
+                        help="list every --set key of the method (with --preset, --data and --set applied) with "
+                             "its value and description, then exit")
     return parser
 
 
@@ -71,21 +74,23 @@ def apply_generator_options(parser_config, args: argparse.Namespace) -> None:
         setattr(parser_config, option, value)
 
 
-def make_config(args: argparse.Namespace, methods):
-    """The trainer config of a parsed command line."""
+def make_config(args: argparse.Namespace, methods, resolve_data: bool = True):
+    """The trainer config of a parsed command line (``resolve_data=False``: the method's own dataparser
+    config, without reading the input or building the default scene)."""
     if args.method not in methods:
         raise ConfigError(f"unknown method {args.method!r}; known methods: {', '.join(methods)}")
     config = methods[args.method].make_config(args.preset)
     config.method_name = args.method
     data = args.data
-    if data is None:
+    if data is None and resolve_data:
         from va_plugin.data.scenes.builder import ensure_default_scene
 
         data = ensure_default_scene(cache_dir() / f"default-scene-{args.default_scene_resolution}",
                                     resolution=args.default_scene_resolution)
-    config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), args.data_format,
-                                                                config.pipeline.datamanager.dataparser)
-    apply_generator_options(config.pipeline.datamanager.dataparser, args)
+    if data is not None:
+        config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), args.data_format,
+                                                                    config.pipeline.datamanager.dataparser)
+        apply_generator_options(config.pipeline.datamanager.dataparser, args)
     config.output_dir = args.output_dir if args.output_dir is not None else Path("outputs") / args.method
     if args.steps is not None:
         config.max_steps = args.steps
@@ -112,6 +117,10 @@ def describe_inputs(trainer, run_dir: Path) -> None:
 def main(argv: Optional[List[str]] = None) -> int:
     methods = discover_methods()
     args = build_parser(methods).parse_args(argv)
+    if args.help_config:
+        print(f"--set keys of {args.method} (preset {args.preset or 'default'}): key = value, then what it does")
+        print(format_options(make_config(args, methods, resolve_data=False)), end="")
+        return 0
     config = make_config(args, methods)
     run_dir = Path(config.output_dir)
     from va_plugin.engine.trainer import list_checkpoints
