@@ -232,114 +232,139 @@ def jobs_and_threads(args: argparse.Namespace) -> tuple:
     return args.jobs, (0 if args.jobs == 1 else max(1, (os.cpu_count() or 1) // args.jobs))
 
 
-def run_experiment(experiment: Experiment, args: argparse.Namespace, command: str) -> int:
-    preset = preset_from_args(args)
-    jobs, threads = jobs_and_threads(args)
-    if jobs == 1 and threads > 0:
-        import torch
+class ExperimentRun:
+    """One run of an experiment: its rows, where they are stored, the progress and the reports.
 
-        torch.set_num_threads(threads)
-    out = (args.out if args.out is not None else Path("outputs") / "bench" / f"{experiment.name}-{preset.name}")
-    out = out.resolve()
-    scene_names = preset.axis_scenes if experiment.axis_scenes else preset.scenes
-    sources = expand_scene_names(scene_names, args.data_root)
-    if not sources:
-        raise ConfigError("no scenes to run")
-    rows = experiment.plan(preset, args, sources)
-    store = ResultStore(out, args.resume)
-    budgets = [run_steps(row, preset) for row in rows]
-    progress = Progress(budgets, jobs)
-    meta: Dict[str, Any] = {"experiment": experiment.name, "title": experiment.title, "command": command,
-                            "date": datetime.now().strftime("%Y-%m-%d %H:%M"), "preset": preset.name,
-                            "preset_description": preset.description, "settings": _settings(preset, rows),
-                            "machine": machine_info(), "rows_planned": len(rows), "jobs": jobs}
-    meta["machine"]["load_average_start"] = meta["machine"].pop("load_average", None)
-    if jobs > 1:
-        meta["machine"]["torch_threads"] = threads
-    at_once = f"; {jobs} rows at a time, {threads} torch thread{'' if threads == 1 else 's'} each" if jobs > 1 else ""
-    print(f"{experiment.title}: {len(rows)} rows, preset {preset.name}, results in {out}{at_once}", flush=True)
-    results: Dict[str, Dict[str, Any]] = {}
-    written: List[Path] = []
-    skipped = 0
+    The rows run one after another in this process (:meth:`run_sequentially`) or ``jobs`` at a time in
+    worker processes (:meth:`run_in_workers`); either way each row goes through :meth:`prepare` (scene,
+    config, fingerprint; a row finished earlier is taken from the store), :meth:`start` and
+    :meth:`finish` (stored, reported), and training is :func:`~va_plugin.bench.rows.run_row`."""
 
-    def write_reports() -> List[Path]:
-        done = [results[r.key] for r in rows if r.key in results]
-        meta.update(rows_done=len(done), rows_run=len(done) - skipped, wall=duration(progress.elapsed()))
-        meta["machine"]["load_average_end"] = machine_info().get("load_average")
-        return experiment.report(done, out, meta)
+    def __init__(self, experiment: Experiment, args: argparse.Namespace, command: str) -> None:
+        self.experiment, self.args = experiment, args
+        self.preset = preset = preset_from_args(args)
+        self.jobs, self.threads = jobs_and_threads(args)
+        out = args.out if args.out is not None else Path("outputs") / "bench" / f"{experiment.name}-{preset.name}"
+        self.out = out.resolve()
+        sources = expand_scene_names(preset.axis_scenes if experiment.axis_scenes else preset.scenes, args.data_root)
+        if not sources:
+            raise ConfigError("no scenes to run")
+        self.rows = experiment.plan(preset, args, sources)
+        self.store = ResultStore(self.out, args.resume)
+        self.progress = Progress([run_steps(row, preset) for row in self.rows], self.jobs)
+        self.meta: Dict[str, Any] = {
+            "experiment": experiment.name, "title": experiment.title, "command": command,
+            "date": datetime.now().strftime("%Y-%m-%d %H:%M"), "preset": preset.name,
+            "preset_description": preset.description, "settings": _settings(preset, self.rows),
+            "machine": machine_info(), "rows_planned": len(self.rows), "jobs": self.jobs}
+        self.meta["machine"]["load_average_start"] = self.meta["machine"].pop("load_average", None)
+        if self.jobs > 1:
+            self.meta["machine"]["torch_threads"] = self.threads
+        self.results: Dict[str, Dict[str, Any]] = {}
+        """Finished rows by key (run now or taken from the store)."""
+        self.skipped = 0
+        """Rows taken from the store."""
 
-    def prepare(index: int, row: RowSpec) -> Optional[RowTask]:
+    def write_reports(self) -> List[Path]:
+        done = [self.results[r.key] for r in self.rows if r.key in self.results]
+        self.meta.update(rows_done=len(done), rows_run=len(done) - self.skipped,
+                         wall=duration(self.progress.elapsed()))
+        self.meta["machine"]["load_average_end"] = machine_info().get("load_average")
+        return self.experiment.report(done, self.out, self.meta)
+
+    def prepare(self, index: int, row: RowSpec) -> Optional[RowTask]:
         """The row's scene (built when missing), config and fingerprint; None when it finished earlier."""
-        nonlocal skipped
+        out, progress = self.out, self.progress
         scene_dir = out / "scenes" / row.scene.folder_name
         if not (scene_dir / "scene.json").is_file():
             print(f"{progress.prefix(index)} building scene {row.scene.name} (level {row.scene.level}, "
                   f"{row.scene.views} views, {row.scene.resolution} px)", flush=True)
-        scene_dir = ensure_scene(row.scene, out / "scenes", args.data_root)
-        config = row_config(row, preset, scene_dir, out / "runs" / row.key, args.seed, args.device)
-        row_fingerprint = fingerprint(config, preset.evaluation, out)
-        stored = store.finished(row.key, row_fingerprint)
+        scene_dir = ensure_scene(row.scene, out / "scenes", self.args.data_root)
+        config = row_config(row, self.preset, scene_dir, out / "runs" / row.key, self.args.seed, self.args.device)
+        row_fingerprint = fingerprint(config, self.preset.evaluation, out)
+        stored = self.store.finished(row.key, row_fingerprint)
         if stored is None:
-            return RowTask(index, row, config, scene_dir, preset.evaluation, row_fingerprint)
-        results[row.key] = stored
+            return RowTask(index, row, config, scene_dir, self.preset.evaluation, row_fingerprint)
+        self.results[row.key] = stored
         progress.skip(index)
-        skipped += 1
+        self.skipped += 1
         print(f"{progress.prefix(index)} {row.scene.name}: {row.label}: finished earlier, skipped", flush=True)
         return None
 
-    def start(task: RowTask) -> None:
-        if task.index not in progress.running:  # the sequential path starts the clock before the scene
-            progress.start(task.index)
+    def start(self, task: RowTask) -> None:
+        if task.index not in self.progress.running:  # the sequential path starts the clock before the scene
+            self.progress.start(task.index)
         row = task.row
-        print(f"{progress.prefix(task.index)} {row.scene.name}: {row.label} ({row.method}, "
+        print(f"{self.progress.prefix(task.index)} {row.scene.name}: {row.label} ({row.method}, "
               f"{task.config.max_steps} steps)", flush=True)
 
-    def finish(task: RowTask, result: Dict[str, Any]) -> None:
-        nonlocal written
-        store.add(result)
-        results[task.row.key] = result
-        seconds = progress.finish(task.index)
-        where = "    " if jobs == 1 else f"{progress.prefix(task.index)} {task.row.scene.name}: {task.row.label}: "
+    def finish(self, task: RowTask, result: Dict[str, Any]) -> None:
+        self.store.add(result)
+        self.results[task.row.key] = result
+        seconds = self.progress.finish(task.index)
+        where = "    " if self.jobs == 1 else \
+            f"{self.progress.prefix(task.index)} {task.row.scene.name}: {task.row.label}: "
         print(f"{where}done in {duration(seconds)}: {describe(result)}", flush=True)
-        written = write_reports()
+        self.write_reports()
 
-    def interrupted(in_flight: str) -> int:
-        if results:
-            write_reports()
-        print(f"\ninterrupted in {in_flight}; finished rows are kept in {store.path}. "
+    def failed(self, task: RowTask) -> None:
+        self.progress.running.pop(task.index)
+        print(f"{self.progress.prefix(task.index)} {task.row.scene.name}: {task.row.label}: failed in its worker "
+              "process; stopping the other rows", flush=True)
+
+    def interrupted(self, in_flight: str) -> int:
+        if self.results:
+            self.write_reports()
+        print(f"\ninterrupted in {in_flight}; finished rows are kept in {self.store.path}. "
               "Rerun the same command with --resume to continue.", file=sys.stderr)
         return EXIT_INTERRUPTED
 
-    if jobs == 1:
-        for index, row in enumerate(rows):
-            progress.start(index)
-            task = prepare(index, row)
+    def run_sequentially(self) -> Optional[int]:
+        """Every row in this process; the exit status when interrupted, else None."""
+        for index, row in enumerate(self.rows):
+            self.progress.start(index)
+            task = self.prepare(index, row)
             if task is None:
                 continue
-            start(task)
+            self.start(task)
             task.config.progress = sys.stderr.isatty()
             try:
-                result = run_row(row, task.config, task.scene_dir, preset.evaluation, task.fingerprint)
+                result = run_row(row, task.config, task.scene_dir, self.preset.evaluation, task.fingerprint)
             except KeyboardInterrupt:
-                return interrupted(f"row {index + 1} ({row.key})")
-            finish(task, result)
-    else:
-        tasks = [task for task in (prepare(index, row) for index, row in enumerate(rows)) if task is not None]
+                return self.interrupted(f"row {index + 1} ({row.key})")
+            self.finish(task, result)
+        return None
+
+    def run_in_workers(self) -> Optional[int]:
+        """The rows ``jobs`` at a time in worker processes; the exit status when interrupted, else None."""
+        tasks = [task for task in (self.prepare(index, row) for index, row in enumerate(self.rows))
+                 if task is not None]
         for task in tasks:
             task.config.progress = False  # bars of rows running at once would overwrite each other
-
-        def failed(task: RowTask) -> None:
-            progress.running.pop(task.index)
-            print(f"{progress.prefix(task.index)} {task.row.scene.name}: {task.row.label}: failed in its worker "
-                  "process; stopping the other rows", flush=True)
-
         try:
-            run_in_processes(tasks, jobs, threads, start, finish, failed)
+            run_in_processes(tasks, self.jobs, self.threads, self.start, self.finish, self.failed)
         except KeyboardInterrupt:
-            return interrupted("row(s) " + ", ".join(f"{i + 1} ({rows[i].key})" for i in sorted(progress.running)))
-    written = write_reports()
-    ran = len(rows) - skipped
-    print(f"\n{experiment.title}: {ran} rows run, {skipped} skipped as finished, in {duration(progress.elapsed())}")
+            return self.interrupted("row(s) " + ", ".join(f"{i + 1} ({self.rows[i].key})"
+                                                          for i in sorted(self.progress.running)))
+        return None
+
+
+def run_experiment(experiment: Experiment, args: argparse.Namespace, command: str) -> int:
+    run = ExperimentRun(experiment, args, command)
+    if run.jobs == 1 and run.threads > 0:
+        import torch
+
+        torch.set_num_threads(run.threads)
+    at_once = f"; {run.jobs} rows at a time, {run.threads} torch thread{'' if run.threads == 1 else 's'} each" \
+        if run.jobs > 1 else ""
+    print(f"{experiment.title}: {len(run.rows)} rows, preset {run.preset.name}, results in {run.out}{at_once}",
+          flush=True)
+    status = run.run_sequentially() if run.jobs == 1 else run.run_in_workers()
+    if status is not None:
+        return status
+    written = run.write_reports()
+    print(f"\n{experiment.title}: {len(run.rows) - run.skipped} rows run, {run.skipped} skipped as finished, "
+          f"in {duration(run.progress.elapsed())}")
     if written:
         print(Path(written[0]).read_text())
         print("files: " + ", ".join(str(p) for p in written))
