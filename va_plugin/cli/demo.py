@@ -66,14 +66,14 @@ def main(argv: Optional[List[str]] = None) -> int:
     config = make_config(demo_train_args(args, methods), methods)
     scene_dir = cache_dir() / f"default-scene-{args.resolution}"
     print(f"default scene: {scene_dir}")
-    trainer = config.setup()
-    if trainer.resume():
-        print(f"continuing the run in {args.output_dir} from step {trainer.step}")
+    from va_plugin.engine.trainer import TrainingInterrupted, train_run
+
     try:
-        trainer.train()
-    except KeyboardInterrupt:
-        path = trainer.save_checkpoint()
-        print(f"interrupted at step {trainer.step}; saved {path}; run va-demo again to continue", file=sys.stderr)
+        trainer = train_run(config, resume=True, on_resume=lambda step: print(
+            f"continuing the run in {args.output_dir} from step {step}")).trainer
+    except TrainingInterrupted as interrupt:
+        print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; run va-demo again to continue",
+              file=sys.stderr)
         return EXIT_INTERRUPTED
     from va_plugin.eval.evaluate import evaluate_run
     from va_plugin.export.mesh import extract_mesh, write_mesh

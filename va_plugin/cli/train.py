@@ -123,20 +123,19 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 0
     config = make_config(args, methods)
     run_dir = Path(config.output_dir)
-    from va_plugin.engine.trainer import list_checkpoints
+    from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints, train_run
 
     if not args.resume and list_checkpoints(run_dir):
         raise ConfigError(f"{run_dir} already holds checkpoints; pass --resume to continue, "
                           "or choose another --output-dir")
     trainer = config.setup()
     describe_inputs(trainer, run_dir)
-    if args.resume and trainer.resume():
-        print(f"resuming {config.method_name} from step {trainer.step}", file=sys.stderr)
     try:
-        record = trainer.train()
-    except KeyboardInterrupt:
-        path = trainer.save_checkpoint()
-        print(f"interrupted at step {trainer.step}; saved {path}; continue with --resume", file=sys.stderr)
+        record = train_run(config, resume=args.resume, trainer=trainer, on_resume=lambda step: print(
+            f"resuming {config.method_name} from step {step}", file=sys.stderr)).record
+    except TrainingInterrupted as interrupt:
+        print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with --resume",
+              file=sys.stderr)
         return EXIT_INTERRUPTED
     summary = ", ".join(f"{k} {record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record)
     print(f"trained {config.method_name} for {trainer.step} steps in {trainer.train_seconds:.1f} s ({summary}); "

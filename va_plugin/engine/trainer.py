@@ -9,7 +9,7 @@ import time
 import warnings
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Type
+from typing import Any, Callable, Dict, List, Optional, Type
 
 import numpy as np
 import torch
@@ -356,14 +356,18 @@ class TrainedRun:
     resumed_from: Optional[int]
 
 
-def train_run(config: TrainerConfig, resume: bool = True, trainer: Optional[Trainer] = None) -> TrainedRun:
+def train_run(config: TrainerConfig, resume: bool = True, trainer: Optional[Trainer] = None,
+              on_resume: Optional[Callable[[int], None]] = None) -> TrainedRun:
     """Train a run folder to its budget: the one way every command and benchmark trains a run.
 
     With ``resume``, the run continues from the newest checkpoint in ``config.output_dir`` when there is
-    one. A Ctrl-C writes a checkpoint and comes out as :class:`TrainingInterrupted` (a KeyboardInterrupt).
-    ``trainer``: one already set up from ``config`` (for a caller that reads it before training)."""
+    one (then ``on_resume(step)`` is called before training). A Ctrl-C writes a checkpoint and comes out
+    as :class:`TrainingInterrupted` (a KeyboardInterrupt). ``trainer``: one already set up from
+    ``config`` (for a caller that reads it before training)."""
     trainer = config.setup() if trainer is None else trainer
     resumed_from = trainer.step if resume and trainer.resume() else None
+    if resumed_from is not None and on_resume is not None:
+        on_resume(resumed_from)
     try:
         record = trainer.train()
     except KeyboardInterrupt:
