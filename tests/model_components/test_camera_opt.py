@@ -1,6 +1,7 @@
 """Per-view camera refinement: Rodrigues against hand values and matrix_exp, the frozen and novel
 views untouched, finite gradients at zero, and the corrections training inside neus."""
 
+import json
 import math
 
 import pytest
@@ -83,6 +84,8 @@ def test_neus_trains_the_corrections_of_unfrozen_views(tiny_scene, tmp_path):
     record = trainer.train()
     moved = (model.camera_optimizer.correction.detach() - before).abs().sum(-1)
     assert moved[0] == 0 and bool((moved[1:] > 0).all()) and record["camera_max_deg"] > 0.0
+    written = json.loads((tmp_path / "run" / "camera_refinement.json").read_text())
+    assert written["rotation_deg"][0] == 0.0 and len(written["rotation_deg"]) == 4
     # off (the default): no parameters, no state-dict entry, no loss term
     plain = tiny_config("neus", tiny_scene, tmp_path / "plain").setup().model
     assert plain.camera_optimizer is None and not any("camera" in k for k in plain.state_dict())

@@ -3,12 +3,15 @@
 from __future__ import annotations
 
 import dataclasses
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Dict, List, Optional, Type
 
 import torch
 from torch import nn
 
+from va_plugin.engine.callbacks import AFTER_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
@@ -124,6 +127,23 @@ class NeuSModel(Model):
             return 1.0
         span = self.config.cos_anneal_fraction * self.scene.max_steps
         return 1.0 if span <= 0 else min(1.0, self.step / span)
+
+    def training_callbacks(self) -> List[object]:
+        callbacks = list(super().training_callbacks())
+        if self.camera_optimizer is not None:
+            callbacks.append(TrainingCallback(self._write_camera_refinement, AFTER_STEP))
+        return callbacks
+
+    def _write_camera_refinement(self, step: int, attributes: TrainingCallbackAttributes) -> None:
+        """After the last step: each view's camera correction to ``camera_refinement.json``."""
+        if step + 1 != attributes.max_steps:
+            return
+        summary = self.camera_optimizer.summary()
+        run_dir = Path(attributes.run_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / CAMERA_REFINEMENT_FILE).write_text(json.dumps(summary, indent=2))
+        attributes.announce(step, f"camera refinement: largest correction {summary['max_rotation_deg']:.3f} deg, "
+                                  f"{summary['max_translation']:.4f} units ({CAMERA_REFINEMENT_FILE})")
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
         groups = self.field.param_groups()
@@ -343,6 +363,9 @@ class NeuSModel(Model):
             camera = torch.full(points.shape[:-1], -1, dtype=torch.long, device=points.device)
             return self.field.color(points, -normals, normals, geo_features, camera)["rgb"]
 
+
+CAMERA_REFINEMENT_FILE = "camera_refinement.json"
+"""In a run folder with camera refinement: each training view's correction (degrees, scene units)."""
 
 SDF_GRADIENTS = ("auto", "autograd", "analytic")
 """The values of ``NeuSModelConfig.sdf_gradient``."""
