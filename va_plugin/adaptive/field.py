@@ -91,8 +91,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     diagnostics_scale: float = 0.5
     """At the end of training, write the attention heat map and the per-view inconsistency maps to the
     run folder, rendered at this fraction of the input resolution (0: don't)."""
-    needs_num_views: bool = field(default=True, repr=False)
-    """Tells the model to pass the number of training views (not an option)."""
+    def setup_for_scene(self, scene):
+        """The wrapper for a scene: it needs the number of training views (one branch each)."""
+        return self.setup(num_train_views=scene.num_train_views)
 
     def validate(self) -> None:
         if self.fusion and not self.branches:

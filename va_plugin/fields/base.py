@@ -21,6 +21,11 @@ from va_plugin.config import InstantiateConfig
 class FieldConfig(InstantiateConfig):
     """Options every field has."""
 
+    def setup_for_scene(self, scene):
+        """The field for a scene (``models.base.SceneInfo``): plain fields need nothing of it; a wrapper
+        that keeps one branch per training view overrides this."""
+        return self.setup()
+
 
 @dataclass
 class HashGridFieldConfig(FieldConfig):

@@ -124,7 +124,3 @@ class Model(nn.Module):
         """Canonical RGB ``[n, 3]`` of surface points seen head-on from outside (mesh vertex colours)."""
         raise NotImplementedError
 
-
-def wants_num_views(field_config) -> bool:
-    """Whether a field config needs to know the number of training views (view-adaptive wrappers)."""
-    return bool(getattr(field_config, "needs_num_views", False))

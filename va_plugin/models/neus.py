@@ -22,7 +22,7 @@ from va_plugin.model_components.robust import per_ray_mask_error, per_ray_rgb_er
 from va_plugin.model_components.neus import SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
-from va_plugin.models.base import Model, ModelConfig, SceneInfo, wants_num_views
+from va_plugin.models.base import Model, ModelConfig, SceneInfo
 from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
 from va_plugin.utils.stages import stage, timed
 
@@ -95,8 +95,7 @@ class NeuSModel(Model):
 
     def __init__(self, config: NeuSModelConfig, scene: SceneInfo) -> None:
         super().__init__(config, scene)
-        self.field = config.field.setup(num_train_views=scene.num_train_views) \
-            if wants_num_views(config.field) else config.field.setup()
+        self.field = config.field.setup_for_scene(scene)
         if self.field.geometry_kind != "sdf":
             raise ConfigError("the neus model needs a field whose geometry is an SDF")
         if not 0.0 <= config.trim_fraction < 1.0:
@@ -347,10 +346,6 @@ class NeuSModel(Model):
         points = points.detach().requires_grad_(True)
         sdf = self.field.geometry(points)[0]
         return torch.autograd.grad(sdf, points, torch.ones_like(sdf), create_graph=True)[0]
-
-    def get_metrics_dict(self, outputs, batch) -> Dict[str, float]:
-        mse = ((outputs["rgb"].detach() - batch["rgb"]) ** 2).mean()
-        return {"psnr": float(losses.psnr_from_mse(mse))}
 
     # -- export ---------------------------------------------------------------------------------
     @torch.no_grad()

@@ -24,7 +24,7 @@ from va_plugin.model_components import losses, renderers
 from va_plugin.model_components.occupancy_grid import (OccupancyGrid, OccupancyGridConfig, scatter,
                                                         transmittance_before)
 from va_plugin.model_components.samplers import uniform_edges
-from va_plugin.models.base import Model, ModelConfig, SceneInfo, wants_num_views
+from va_plugin.models.base import Model, ModelConfig, SceneInfo
 from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
 from va_plugin.utils.stages import timed
 
@@ -63,8 +63,7 @@ class NGPModel(Model):
             raise ConfigError(f"early_stop_transmittance must be in [0, 1), got {config.early_stop_transmittance}")
         if config.density_threshold <= 0:
             raise ConfigError(f"density_threshold must be positive, got {config.density_threshold}")
-        self.field = config.field.setup(num_train_views=scene.num_train_views) \
-            if wants_num_views(config.field) else config.field.setup()
+        self.field = config.field.setup_for_scene(scene)
         if self.field.geometry_kind != "density":
             raise ConfigError("the ngp model needs a field whose geometry is a density")
         bound = getattr(self.field, "bound", None)
