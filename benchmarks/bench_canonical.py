@@ -11,13 +11,12 @@ Writes a JSON of the held-out PSNR, SSIM and LPIPS per run and canonical feature
 
 from __future__ import annotations
 
-import argparse
 import time
 from pathlib import Path
 
 import torch
 
-from va_plugin.bench.store import print_record
+from va_plugin.bench.store import measure_run_folders
 from va_plugin.cli.common import friendly_errors
 from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
@@ -41,20 +40,19 @@ def score(run: Path, image_scale: float, max_views: int) -> dict:
     return result
 
 
-@friendly_errors
-def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", type=Path, nargs="+", help="run folders of va-neus / va-ngp")
+def _options(parser) -> None:
     parser.add_argument("--image-scale", type=float, default=0.5)
     parser.add_argument("--max-views", type=int, default=4)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--out", type=Path, default=None)
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    record = {"date": time.strftime("%Y-%m-%d"), "image_scale": args.image_scale, "max_views": args.max_views,
-              "results": [score(run, args.image_scale, args.max_views) for run in args.runs]}
-    print_record(record, args.out)
-    return 0
+
+
+def _record(args) -> dict:
+    return {"date": time.strftime("%Y-%m-%d"), "image_scale": args.image_scale, "max_views": args.max_views,
+            "results": [score(run, args.image_scale, args.max_views) for run in args.runs]}
+
+
+@friendly_errors
+def main() -> int:
+    return measure_run_folders(__doc__, "run folders of va-neus / va-ngp", _options, _record)
 
 
 if __name__ == "__main__":

@@ -12,7 +12,6 @@ each way and the spread the test thresholds.
 
 from __future__ import annotations
 
-import argparse
 import os
 import platform
 import statistics
@@ -21,7 +20,7 @@ from pathlib import Path
 
 import torch
 
-from va_plugin.bench.store import print_record
+from va_plugin.bench.store import measure_run_folders
 from va_plugin.cli.common import friendly_errors
 from va_plugin.adaptive.phases import view_residuals
 from va_plugin.cli.run import load_run
@@ -58,20 +57,16 @@ def measure(run: Path, rounds: int) -> dict:
     return result
 
 
+def _record(args) -> dict:
+    return {"date": time.strftime("%Y-%m-%d %H:%M"), "threads": args.threads, "cpus": os.cpu_count(),
+            "platform": platform.platform(), "torch": torch.__version__,
+            "results": [measure(run, args.rounds) for run in args.runs]}
+
+
 @friendly_errors
 def main() -> int:
-    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", type=Path, nargs="+", help="run folders (any method; the check uses the shared field)")
-    parser.add_argument("--rounds", type=int, default=3)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--out", type=Path, default=None)
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    record = {"date": time.strftime("%Y-%m-%d %H:%M"), "threads": args.threads, "cpus": os.cpu_count(),
-              "platform": platform.platform(), "torch": torch.__version__,
-              "results": [measure(run, args.rounds) for run in args.runs]}
-    print_record(record, args.out)
-    return 0
+    return measure_run_folders(__doc__, "run folders (any method; the check uses the shared field)",
+                               lambda parser: parser.add_argument("--rounds", type=int, default=3), _record)
 
 
 if __name__ == "__main__":

@@ -26,11 +26,11 @@ import sys
 from pathlib import Path
 from typing import Any, Dict, List, Optional
 
-from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_rows
+from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_axis_rows
 from va_plugin.bench.presets import BACKBONE_TITLES
 from va_plugin.bench.report import (axis_table, fmt, fmt_mean_sd, group_rows, linear_fit, markdown_table, mean_sd,
                                     plot_against, report_sections, write_outputs)
-from va_plugin.bench.rows import RowSpec, scene_of
+from va_plugin.bench.rows import RowSpec
 
 
 def add_arguments(parser) -> None:
@@ -39,8 +39,7 @@ def add_arguments(parser) -> None:
 
 
 def plan(preset, args, sources: List[str]) -> List[RowSpec]:
-    return [row for source in sources for level in axis_values(args.levels, preset.levels)
-            for row in paired_rows("sweep", scene_of(source, preset, args.seed, level=level), args)]
+    return paired_axis_rows("sweep", preset, args, sources, axis_values(args.levels, preset.levels), "level")
 
 
 def render_rmse(row: Dict[str, Any]) -> float:

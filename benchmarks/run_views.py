@@ -19,9 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any, Dict, List
 
-from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_rows
+from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_axis_rows
 from va_plugin.bench.report import axis_table, plot_against, report_sections, write_outputs
-from va_plugin.bench.rows import RowSpec, scene_of
+from va_plugin.bench.rows import RowSpec
 
 
 def add_arguments(parser) -> None:
@@ -30,8 +30,8 @@ def add_arguments(parser) -> None:
 
 
 def plan(preset, args, sources: List[str]) -> List[RowSpec]:
-    return [row for source in sources for views in axis_values(args.view_counts, preset.view_counts)
-            for row in paired_rows("views", scene_of(source, preset, args.seed, views=views), args)]
+    return paired_axis_rows("views", preset, args, sources, axis_values(args.view_counts, preset.view_counts),
+                            "views")
 
 
 def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:

@@ -22,7 +22,7 @@ from typing import Any, Callable, Dict, List, Optional, Sequence
 from va_plugin.bench.parallel import RowTask, run_in_processes
 from va_plugin.bench.presets import BACKBONES, PRESETS, BenchPreset, get_preset
 from va_plugin.bench.report import fmt, machine_info
-from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, run_steps
+from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, run_steps, scene_of
 from va_plugin.bench.scenes import ensure_scene, expand_scene_names
 from va_plugin.bench.store import ResultStore
 from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
@@ -143,6 +143,14 @@ def paired_rows(experiment: str, scene, args: argparse.Namespace) -> List[RowSpe
         rows.append(RowSpec(experiment, scene, backbone, adaptive=False))
         rows.append(RowSpec(experiment, scene, backbone, adaptive=True, overrides=adaptive_overrides(args)))
     return rows
+
+
+def paired_axis_rows(experiment: str, preset, args: argparse.Namespace, sources: Sequence[str],
+                     values: Sequence[int], scene_key: str) -> List[RowSpec]:
+    """:func:`paired_rows` on every source at every value of one scene setting (``scene_key``: "level",
+    "views"), in the order source, value, backbone."""
+    return [row for source in sources for value in values
+            for row in paired_rows(experiment, scene_of(source, preset, args.seed, **{scene_key: value}), args)]
 
 
 def axis_values(text: Optional[str], default: Sequence[int]) -> List[int]:
