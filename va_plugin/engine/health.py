@@ -57,9 +57,10 @@ class HealthConfig:
     """Consecutive skipped (non-finite) steps after which the last good state is restored."""
     max_restores: int = 20
     """Restores after which training stops with a clear error."""
-    inv_s_tolerance: float = 0.25
-    """inv_s counts as below its start when it falls more than this fraction under it (a dip of 10% in
-    the first few dozen steps, before a surface forms, is normal at neus's inv_s learning rate)."""
+    inv_s_tolerance: float = 0.5
+    """inv_s counts as below its start when it falls more than this fraction under it. At neus's inv_s
+    learning rate a dip of 10-25% in the first few dozen steps, before a surface forms, is normal
+    (measured on GSO objects); a diverging run falls by orders of magnitude (see ``inv_s_collapse``)."""
     inv_s_collapse: float = 0.01
     """inv_s below this fraction of its start value is a collapse, rolled back like a blow-up (0: never).
     Healthy NeuS runs only raise inv_s; a diverging one can dip below its start, but not a hundredfold."""
