@@ -203,9 +203,7 @@ class NeuSModel(Model):
 
     def _sdf_along(self, ray_bundle: RayBundle, t: torch.Tensor) -> torch.Tensor:
         points = ray_bundle.origins[:, None] + ray_bundle.directions[:, None] * t[..., None]
-        if self.view_deformation is not None:
-            points = self.view_deformation.apply(points, ray_bundle.camera_indices[:, None])
-        return self.field.geometry(points)[0][..., 0]
+        return self.field.geometry(self._deformed(points, ray_bundle.camera_indices[:, None]))[0][..., 0]
 
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
