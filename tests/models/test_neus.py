@@ -135,3 +135,12 @@ def test_smoothness_prior_is_a_finite_loss_that_trains_the_geometry(tiny_scene, 
     plain = _trainer(tiny_scene, tmp_path / "plain").model
     out = plain.get_outputs(rays)
     assert "surface_points" not in out and "smoothness" not in plain.get_loss_dict(out, batch)
+
+
+@pytest.mark.parametrize("key, value", [("smoothness_weight", -1.0), ("smoothness_radius", 0.0),
+                                        ("smoothness_points", 0)])
+def test_bad_smoothness_options_are_config_errors(key, value, tiny_scene, tmp_path):
+    from va_plugin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=key):
+        _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})

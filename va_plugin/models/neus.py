@@ -100,6 +100,9 @@ class NeuSModel(Model):
             raise ConfigError("the neus model needs a field whose geometry is an SDF")
         if not 0.0 <= config.trim_fraction < 1.0:
             raise ConfigError(f"trim_fraction must be in [0, 1), got {config.trim_fraction}")
+        if config.smoothness_weight < 0 or config.smoothness_radius <= 0 or config.smoothness_points < 1:
+            raise ConfigError("smoothness_weight must be >= 0, smoothness_radius > 0 and smoothness_points >= 1, got "
+                              f"{config.smoothness_weight}, {config.smoothness_radius} and {config.smoothness_points}")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
         if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
