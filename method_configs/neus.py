@@ -31,7 +31,8 @@ def neus_config() -> TrainerConfig:
         # at 5e-3 ~200-250, with LPIPS -11..-14% and CD -8..-20% on the GSO objects (benchmarks/RESULTS.md)
         optimizers={"fields": OptimizerConfig(lr=1e-2), "variance": OptimizerConfig(lr=5e-3),
                     # used only when pipeline.model.camera_opt / view_deformation are switched on
-                    "camera_opt": OptimizerConfig(lr=1e-3), "view_deformation": OptimizerConfig(lr=1e-3)},
+                    "camera_opt": OptimizerConfig(lr=1e-3), "view_deformation": OptimizerConfig(lr=1e-3),
+                    "view_appearance": OptimizerConfig(lr=1e-3)},
         scheduler=SchedulerConfig(warmup_steps=100, final_fraction=0.05),
         max_steps=1000,
     )

@@ -19,7 +19,9 @@ def ngp_config() -> TrainerConfig:
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
             model=NGPModelConfig(field=DensityFieldConfig(), n_samples=96),
         ),
-        optimizers={"fields": OptimizerConfig(lr=1e-2)},
+        optimizers={"fields": OptimizerConfig(lr=1e-2),
+                    # used only when pipeline.model.view_appearance is switched on
+                    "view_appearance": OptimizerConfig(lr=1e-3)},
         scheduler=SchedulerConfig(warmup_steps=50, final_fraction=0.05),
         max_steps=1000,
     )

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Callable, Dict, List, Optional, Sequence
 
 import torch
@@ -10,7 +12,9 @@ from torch import nn
 
 from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
+from va_plugin.engine.callbacks import AFTER_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.model_components.losses import psnr_from_mse
+from va_plugin.model_components.view_appearance import ViewAppearanceConfig
 from va_plugin.rays import RayBundle
 
 
@@ -34,7 +38,13 @@ class ModelConfig(InstantiateConfig):
     """Photometric loss: "l2" (the paper's eq. 13) or "l1"."""
     eval_chunk: int = 2048
     """Rays rendered at once when rendering whole images."""
+    view_appearance: ViewAppearanceConfig = field(default_factory=ViewAppearanceConfig)
+    """Per-view colour correction of the training views' renders (``mode``: off, gain or affine; its
+    learning rate is the "view_appearance" optimizer group). Novel views and mesh colours never use it."""
 
+
+VIEW_APPEARANCE_FILE = "view_appearance.json"
+"""In a run folder with per-view appearance: each training view's colour matrix and offset."""
 
 ExtraLoss = Callable[[Dict[str, torch.Tensor], Dict[str, torch.Tensor], int], Dict[str, torch.Tensor]]
 
@@ -53,6 +63,9 @@ class Model(nn.Module):
         self.step = 0
         self.extra_losses: List[ExtraLoss] = []
         """Hooks adding loss terms (e.g. a score-distillation loss): ``(outputs, batch, step) -> dict``."""
+        self.view_appearance = config.view_appearance.setup(num_views=scene.num_train_views) \
+            if config.view_appearance.mode != "off" else None
+        """Per-view colour corrections, or None (then the state dict has no entry for them)."""
 
     # -- training -------------------------------------------------------------------------------
     def update_step(self, step: int) -> None:
@@ -70,7 +83,24 @@ class Model(nn.Module):
                       ) -> Dict[str, torch.Tensor]:
         raise NotImplementedError
 
+    def apply_view_appearance(self, outputs: Dict[str, torch.Tensor], ray_bundle: RayBundle
+                              ) -> Dict[str, torch.Tensor]:
+        """``outputs`` with each training view's colour correction applied to ``rgb`` (unchanged without
+        per-view appearance; novel-view rays, camera index -1, are never changed)."""
+        if self.view_appearance is not None:
+            outputs["rgb"] = self.view_appearance.apply(outputs["rgb"], outputs["accumulation"], self.background,
+                                                        ray_bundle.camera_indices)
+        return outputs
+
+    def with_shared_param_groups(self, groups: Dict[str, List[nn.Parameter]]) -> Dict[str, List[nn.Parameter]]:
+        """``groups`` plus the groups of the parts every model may have (the per-view colour correction)."""
+        if self.view_appearance is not None:
+            groups["view_appearance"] = list(self.view_appearance.parameters())
+        return groups
+
     def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
+        if self.view_appearance is not None:
+            losses["view_appearance"] = self.view_appearance.loss()
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
         return losses
@@ -88,12 +118,29 @@ class Model(nn.Module):
         """Callbacks the trainer runs (e.g. phase switches); the model knows nothing of the trainer.
         By default those of the model's ``field``, if it has any."""
         make = getattr(getattr(self, "field", None), "training_callbacks", None)
-        return list(make()) if make is not None else []
+        callbacks = list(make()) if make is not None else []
+        if self.view_appearance is not None:
+            callbacks.append(TrainingCallback(self._write_view_appearance, AFTER_STEP))
+        return callbacks
+
+    def _write_view_appearance(self, step: int, attributes: TrainingCallbackAttributes) -> None:
+        """After the last step: each view's colour correction to ``view_appearance.json``."""
+        if step + 1 != attributes.max_steps:
+            return
+        summary = self.view_appearance.summary()
+        run_dir = Path(attributes.run_dir)
+        run_dir.mkdir(parents=True, exist_ok=True)
+        (run_dir / VIEW_APPEARANCE_FILE).write_text(json.dumps(summary, indent=2))
+        attributes.announce(step, f"view appearance: largest colour change {summary['max_change']:.4f} "
+                                  f"({VIEW_APPEARANCE_FILE})")
 
     def diagnostics(self) -> Dict[str, float]:
         """Scalars worth logging (e.g. inv_s); by default those of the model's ``field``."""
         report = getattr(getattr(self, "field", None), "diagnostics", None)
-        return dict(report()) if report is not None else {}
+        out = dict(report()) if report is not None else {}
+        if self.view_appearance is not None:
+            out["appearance_max"] = self.view_appearance.summary()["max_change"]
+        return out
 
     def sharpness(self) -> Optional[float]:
         """NeuS's inv_s for the training guard's collapse test; None for models without one."""

@@ -154,7 +154,7 @@ class NeuSModel(Model):
             groups["camera_opt"] = list(self.camera_optimizer.parameters())
         if self.view_deformation is not None:
             groups["view_deformation"] = list(self.view_deformation.parameters())
-        return groups
+        return self.with_shared_param_groups(groups)
 
     def sharpness(self) -> Optional[float]:
         return float(self.variance.inv_s().detach())
@@ -240,7 +240,8 @@ class NeuSModel(Model):
         if self.training:
             self.samples_per_ray = inner["weights"].numel() / max(n_rays, 1)
             self.probed_per_ray = (edges.shape[1] * n_rays + self._upsample_probes() * len(sub)) / max(n_rays, 1)
-        return inner if index is None else _scatter_rays(inner, index, n_rays, self.background, blank)
+        outputs = inner if index is None else _scatter_rays(inner, index, n_rays, self.background, blank)
+        return self.apply_view_appearance(outputs, ray_bundle)
 
     def _deformed(self, points: torch.Tensor, camera_indices: torch.Tensor) -> torch.Tensor:
         """Sample points as their view sees the shared field (unchanged without per-view deformation)."""

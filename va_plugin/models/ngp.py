@@ -79,7 +79,7 @@ class NGPModel(Model):
 
     # -- training -------------------------------------------------------------------------------
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
-        return self.field.param_groups()
+        return self.with_shared_param_groups(self.field.param_groups())
 
     def training_callbacks(self) -> List[object]:
         callbacks = list(super().training_callbacks())
@@ -110,9 +110,9 @@ class NGPModel(Model):
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         if self.training:
-            return self._render(ray_bundle)
+            return self.apply_view_appearance(self._render(ray_bundle), ray_bundle)
         with torch.no_grad():
-            return self._render(ray_bundle)
+            return self.apply_view_appearance(self._render(ray_bundle), ray_bundle)
 
     @timed("sampling")
     def _samples_to_evaluate(self, samples: RaySamples) -> tuple[torch.Tensor, Optional[tuple]]:
