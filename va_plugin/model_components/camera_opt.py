@@ -22,6 +22,7 @@ from torch import nn
 
 from va_plugin.config import InstantiateConfig
 from va_plugin.errors import ConfigError
+from va_plugin.model_components.per_view import PerViewCorrection
 from va_plugin.rays import RayBundle
 
 CAMERA_OPT_MODES = ("off", "SO3", "SE3")
@@ -46,26 +47,19 @@ class CameraOptimizerConfig(InstantiateConfig):
     """Weight of the mean squared correction (radians and scene units) in the loss."""
 
 
-class CameraOptimizer(nn.Module):
+class CameraOptimizer(PerViewCorrection):
     """The learned corrections ``[num_views, 6]`` (rotation vector, translation), zero at the start."""
 
     def __init__(self, config: CameraOptimizerConfig, num_views: int) -> None:
-        super().__init__()
         if config.mode not in CAMERA_OPT_MODES:
             raise ConfigError(f"camera_opt.mode must be one of {', '.join(CAMERA_OPT_MODES)}, got {config.mode!r}")
         if config.penalty_weight < 0:
             raise ConfigError(f"camera_opt.penalty_weight must be >= 0, got {config.penalty_weight}")
+        super().__init__(num_views, 6, config.frozen_views, config.penalty_weight)
         self.config = config
-        self.num_views = num_views
         self.enabled = config.mode != "off" and num_views > 0
-        self.correction = nn.Parameter(torch.zeros(max(num_views, 1), 6))
-        trained = torch.ones(max(num_views, 1), 6)
-        for view in config.frozen_views:
-            if 0 <= view < num_views:
-                trained[view] = 0.0
         if config.mode == "SO3":
-            trained[:, 3:] = 0.0
-        self.register_buffer("trained", trained, persistent=False)
+            self.trained[:, 3:] = 0.0
 
     def corrections(self) -> Tuple[torch.Tensor, torch.Tensor]:
         """Rotations ``[V, 3, 3]`` and translations ``[V, 3]`` of every training view."""
@@ -82,21 +76,13 @@ class CameraOptimizer(nn.Module):
         if not self.enabled:
             return rays
         rotations, translations = self.corrections()
-        index = rays.camera_indices
-        known = (index >= 0) & (index < self.num_views)
-        safe = torch.where(known, index, torch.zeros_like(index))
+        known, safe = self.view_index(rays.camera_indices)
         rotation = rotations[safe]  # [n, 3, 3]
         origins = torch.einsum("nij,nj->ni", rotation, rays.origins) + translations[safe]
         directions = torch.einsum("nij,nj->ni", rotation, rays.directions)
         keep = known[:, None]
         return RayBundle(torch.where(keep, origins, rays.origins), torch.where(keep, directions, rays.directions),
                          rays.camera_indices, rays.nears, rays.fars)
-
-    def loss(self) -> torch.Tensor:
-        """``penalty_weight`` times the mean squared correction over the trained views."""
-        delta = self.correction * self.trained
-        count = self.trained.sum().clamp_min(1.0)
-        return self.config.penalty_weight * (delta * delta).sum() / count
 
     @torch.no_grad()
     def summary(self) -> Dict[str, object]:

@@ -22,10 +22,10 @@ from dataclasses import dataclass, field
 from typing import Dict, Tuple, Type
 
 import torch
-from torch import nn
 
 from va_plugin.config import InstantiateConfig
 from va_plugin.errors import ConfigError
+from va_plugin.model_components.per_view import PerViewCorrection
 
 APPEARANCE_MODES = ("off", "gain", "affine")
 MAX_CHANGE = 0.5
@@ -48,28 +48,20 @@ class ViewAppearanceConfig(InstantiateConfig):
     """Weight of the mean squared change (matrix from the identity, offset from zero) in the loss."""
 
 
-class ViewAppearance(nn.Module):
+class ViewAppearance(PerViewCorrection):
     """The learned corrections ``[num_views, 12]`` (the matrix's change from the identity, row-major,
     then the offset), zero at the start."""
 
     def __init__(self, config: ViewAppearanceConfig, num_views: int) -> None:
-        super().__init__()
         if config.mode not in APPEARANCE_MODES:
             raise ConfigError(f"view_appearance.mode must be one of {', '.join(APPEARANCE_MODES)}, "
                               f"got {config.mode!r}")
         if config.penalty_weight < 0:
             raise ConfigError(f"view_appearance.penalty_weight must be >= 0, got {config.penalty_weight}")
+        super().__init__(num_views, 12, config.frozen_views, config.penalty_weight)
         self.config = config
-        self.num_views = num_views
-        self.correction = nn.Parameter(torch.zeros(max(num_views, 1), 12))
-        trained = torch.ones(max(num_views, 1), 12)
-        for view in config.frozen_views:
-            if 0 <= view < num_views:
-                trained[view] = 0.0
         if config.mode == "gain":  # only the matrix's diagonal (entries 0, 4, 8) and the offset
-            off_diagonal = [i for i in range(9) if i not in (0, 4, 8)]
-            trained[:, off_diagonal] = 0.0
-        self.register_buffer("trained", trained, persistent=False)
+            self.trained[:, [i for i in range(9) if i not in (0, 4, 8)]] = 0.0
 
     def transforms(self) -> Tuple[torch.Tensor, torch.Tensor]:
         """Colour matrices ``[V, 3, 3]`` and offsets ``[V, 3]`` as applied (frozen views: identity, zero)."""
@@ -83,18 +75,11 @@ class ViewAppearance(nn.Module):
         object's part; ``accumulation [n, 1]`` is each ray's opacity. Rays of novel views (index -1) and
         of unknown views are returned as they are."""
         matrices, offsets = self.transforms()
-        known = (camera_indices >= 0) & (camera_indices < self.num_views)
-        safe = torch.where(known, camera_indices, torch.zeros_like(camera_indices))
+        known, safe = self.view_index(camera_indices)
         behind = (1.0 - accumulation).clamp_min(0.0) * background
         foreground = rgb - behind
         corrected = torch.einsum("nij,nj->ni", matrices[safe], foreground) + accumulation * offsets[safe] + behind
         return torch.where(known[:, None], corrected, rgb)
-
-    def loss(self) -> torch.Tensor:
-        """``penalty_weight`` times the mean squared change over the trained entries."""
-        delta = self.correction * self.trained
-        count = self.trained.sum().clamp_min(1.0)
-        return self.config.penalty_weight * (delta * delta).sum() / count
 
     @torch.no_grad()
     def summary(self) -> Dict[str, object]:

@@ -124,15 +124,22 @@ class Model(nn.Module):
         return callbacks
 
     def _write_view_appearance(self, step: int, attributes: TrainingCallbackAttributes) -> None:
-        """After the last step: each view's colour correction to ``view_appearance.json``."""
+        self.write_after_last_step(step, attributes, VIEW_APPEARANCE_FILE, self.view_appearance.summary,
+                                   lambda s: f"view appearance: largest colour change {s['max_change']:.4f}")
+
+    @staticmethod
+    def write_after_last_step(step: int, attributes: TrainingCallbackAttributes, filename: str,
+                              summarize: Callable[[], Dict[str, object]],
+                              describe: Callable[[Dict[str, object]], str]) -> None:
+        """After the last step only: ``summarize()`` as JSON to ``RUN/filename``, announced as ``describe``
+        says."""
         if step + 1 != attributes.max_steps:
             return
-        summary = self.view_appearance.summary()
+        summary = summarize()
         run_dir = Path(attributes.run_dir)
         run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / VIEW_APPEARANCE_FILE).write_text(json.dumps(summary, indent=2))
-        attributes.announce(step, f"view appearance: largest colour change {summary['max_change']:.4f} "
-                                  f"({VIEW_APPEARANCE_FILE})")
+        (run_dir / filename).write_text(json.dumps(summary, indent=2))
+        attributes.announce(step, f"{describe(summary)} ({filename})")
 
     def diagnostics(self) -> Dict[str, float]:
         """Scalars worth logging (e.g. inv_s); by default those of the model's ``field``."""

@@ -3,9 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
-import json
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Dict, List, Optional, Type
 
 import torch
@@ -137,15 +135,9 @@ class NeuSModel(Model):
         return callbacks
 
     def _write_camera_refinement(self, step: int, attributes: TrainingCallbackAttributes) -> None:
-        """After the last step: each view's camera correction to ``camera_refinement.json``."""
-        if step + 1 != attributes.max_steps:
-            return
-        summary = self.camera_optimizer.summary()
-        run_dir = Path(attributes.run_dir)
-        run_dir.mkdir(parents=True, exist_ok=True)
-        (run_dir / CAMERA_REFINEMENT_FILE).write_text(json.dumps(summary, indent=2))
-        attributes.announce(step, f"camera refinement: largest correction {summary['max_rotation_deg']:.3f} deg, "
-                                  f"{summary['max_translation']:.4f} units ({CAMERA_REFINEMENT_FILE})")
+        self.write_after_last_step(step, attributes, CAMERA_REFINEMENT_FILE, self.camera_optimizer.summary,
+                                   lambda s: f"camera refinement: largest correction {s['max_rotation_deg']:.3f} "
+                                             f"deg, {s['max_translation']:.4f} units")
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
         groups = self.field.param_groups()
