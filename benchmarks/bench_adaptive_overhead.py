@@ -63,16 +63,17 @@ def one_step(trainer) -> float:
 
 
 def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, steps: int,
-            fused_per_ray=()) -> dict:
+            fused_per_ray=(), adaptive_set=()) -> dict:
     """Median step times of the backbone, phase 2 and phase 3 (with the config's fused_samples_per_ray,
-    and as ``phase3-kK`` with each K of ``fused_per_ray``), interleaved from the same state."""
+    and as ``phase3-kK`` with each K of ``fused_per_ray``), interleaved from the same state; ``adaptive_set``
+    holds ``PATH=VALUE`` overrides of the adaptive variants (e.g. a smaller branch)."""
     adaptive = f"va-{backbone}"
     trainers = {backbone: make_trainer(backbone, scene, state, out / backbone)}
     variants = [("phase2", BRANCHES, ()), ("phase3", FUSION, ())]
     variants += [(f"phase3-k{k}", FUSION, (f"pipeline.model.field.fused_samples_per_ray={k}",)) for k in fused_per_ray]
     for name, phase, overrides in variants:
         trainers[name] = make_trainer(adaptive, scene, state, out / name,
-                                      (*ADAPTIVE_OVERRIDES, *PHASE_OVERRIDES[phase], *overrides))
+                                      (*ADAPTIVE_OVERRIDES, *PHASE_OVERRIDES[phase], *adaptive_set, *overrides))
     times = {name: [] for name in trainers}
     shares = {name: [] for name in trainers if name.startswith("phase3")}
     for r in range(rounds + 1):
@@ -87,13 +88,16 @@ def measure(scene: Path, backbone: str, state: dict, out: Path, rounds: int, ste
     start = time.perf_counter()
     view_residuals(trainers["phase2"].pipeline)
     check = time.perf_counter() - start
-    field_cfg = get_method(adaptive).make_config().pipeline.model.field  # the method's phase fractions
+    adaptive_config = get_method(adaptive).make_config()
+    for item in adaptive_set:
+        apply_override(adaptive_config, item)
+    field_cfg = adaptive_config.pipeline.model.field  # the method's phase fractions
     medians = {name: statistics.median(v) for name, v in times.items()}
     f1, f2 = field_cfg.pretrain_fraction, field_cfg.branch_fraction
     f3 = 1.0 - f1 - f2
     base = medians[backbone]
     return {
-        "scene": str(scene), "views": trainers[backbone].pipeline.datamanager.num_train_views,
+        "scene": str(scene), "adaptive_set": list(adaptive_set), "views": trainers[backbone].pipeline.datamanager.num_train_views,
         "median_step_s": {k: round(v, 4) for k, v in medians.items()},
         "ratio_phase2": round(medians["phase2"] / base, 3),
         **{f"ratio_{name}": round(medians[name] / base, 3) for name in shares},
@@ -116,13 +120,16 @@ def main() -> None:
     parser.add_argument("--threads", type=int, default=2)
     parser.add_argument("--fused-per-ray", type=int, nargs="*", default=[],
                         help="also time phase 3 with pipeline.model.field.fused_samples_per_ray=K for each K")
+    parser.add_argument("--adaptive-set", action="append", default=[], metavar="PATH=VALUE",
+                        help="config override of the adaptive variants (repeatable), e.g. "
+                             "pipeline.model.field.branch_width=64")
     parser.add_argument("--out", type=Path, default=Path("benchmarks/results/adaptive_overhead.json"))
     args = parser.parse_args()
     torch.set_num_threads(args.threads)
     state = load_checkpoint(args.checkpoint)
     scratch = Path("/tmp/va-bench-overhead")
-    results = [measure(scene, args.backbone, state, scratch, args.rounds, args.steps, args.fused_per_ray)
-               for scene in args.scene]
+    results = [measure(scene, args.backbone, state, scratch, args.rounds, args.steps, args.fused_per_ray,
+                       args.adaptive_set) for scene in args.scene]
     record = {"backbone": args.backbone, "checkpoint": str(args.checkpoint), "threads": args.threads,
               "machine": f"{platform.machine()}, {torch.get_num_threads()} threads, torch {torch.__version__}",
               "date": time.strftime("%Y-%m-%d"), "results": results}

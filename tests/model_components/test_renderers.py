@@ -70,7 +70,7 @@ def test_variance_clamps():
 def test_eikonal_hand_computed_and_zero_gradient():
     g = torch.tensor([[0.0, 0.0, 2.0], [0.0, 0.0, 0.0]], requires_grad=True)
     loss = eikonal_loss(g)
-    assert float(loss) == pytest.approx(1.0, abs=1e-5)  # ((2 - 1)^2 + (0 - 1)^2) / 2
+    assert float(loss.detach()) == pytest.approx(1.0, abs=1e-5)  # ((2 - 1)^2 + (0 - 1)^2) / 2
     loss.backward()
     assert torch.isfinite(g.grad).all()
 
