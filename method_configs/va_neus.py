@@ -1,4 +1,9 @@
-"""The ``va-neus`` method: NeuS with the paper's view-adaptive renderer wrapped around its field."""
+"""The ``va-neus`` method: NeuS with the paper's view-adaptive renderer wrapped around its field.
+
+The branches and the attention are sized to the hash-grid field's 64-wide colour feature f_shared
+(2 layers x 64, attention width 64) instead of the paper's 3 x 128 (sized to its 4 x 256 network): on
+the hash backbone the paper's size made a phase-2 step 1.7x a backbone step (benchmarks/RESULTS.md,
+"Branches sized to the hash backbone")."""
 
 from __future__ import annotations
 
@@ -6,4 +11,5 @@ from method_configs.adaptive import adaptive_method
 from method_configs.neus import neus
 
 va_neus = adaptive_method(
-    neus, "va-neus", "view-adaptive NeuS: per-view branches + self-attention fusion, three training phases")
+    neus, "va-neus", "view-adaptive NeuS: per-view branches + self-attention fusion, three training phases",
+    branch_width=64, branch_layers=2, attention_dim=64)
