@@ -127,7 +127,7 @@ def test_smoothness_prior_is_a_finite_loss_that_trains_the_geometry(tiny_scene, 
     outputs = model.get_outputs(rays)
     assert outputs["surface_valid"].any()  # the sphere start covers the object's pixels
     loss = model.get_loss_dict(outputs, batch)
-    assert 0.0 < float(loss["smoothness"]) < 2.0
+    assert 0.0 < float(loss["smoothness"].detach()) < 2.0
     loss["smoothness"].backward()
     grads = [p.grad for p in model.field.encoding.parameters() if p.grad is not None]
     assert grads and all(torch.isfinite(g).all() for g in grads) and any(g.abs().sum() > 0 for g in grads)
