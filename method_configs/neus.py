@@ -19,8 +19,8 @@ from va_plugin.registry import MethodSpecification, Preset
 
 
 def neus_config() -> TrainerConfig:
-    """The default NeuS run on a 4-view object (budget from benchmarks/run_speed.py's time-to-accuracy
-    curves on the GSO objects; benchmarks/RESULTS.md, "Hash-grid SDF backbone")."""
+    """The default NeuS run on a 4-view object (budget from benchmarks/run_backbone.py's paired 1x/2x runs on
+    the 10 GSO objects; benchmarks/RESULTS.md, "Twice the budget on GSO-10")."""
     return TrainerConfig(
         method_name="neus",
         pipeline=PipelineConfig(
