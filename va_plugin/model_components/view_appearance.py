@@ -63,9 +63,18 @@ class ViewAppearance(PerViewCorrection):
         if config.mode == "gain":  # only the matrix's diagonal (entries 0, 4, 8) and the offset
             self.trained[:, [i for i in range(9) if i not in (0, 4, 8)]] = 0.0
 
+    def _delta(self) -> torch.Tensor:
+        """The changes ``[V, 12]`` as applied: frozen entries zero, each clamped to +-MAX_CHANGE."""
+        return (self.correction * self.trained).clamp(-MAX_CHANGE, MAX_CHANGE)
+
+    @torch.no_grad()
+    def max_change(self) -> float:
+        """The largest change of any applied entry (0 for the identity)."""
+        return float(self._delta().abs().max())
+
     def transforms(self) -> Tuple[torch.Tensor, torch.Tensor]:
         """Colour matrices ``[V, 3, 3]`` and offsets ``[V, 3]`` as applied (frozen views: identity, zero)."""
-        delta = (self.correction * self.trained).clamp(-MAX_CHANGE, MAX_CHANGE)
+        delta = self._delta()
         eye = torch.eye(3, dtype=delta.dtype, device=delta.device)
         return eye + delta[:, :9].reshape(-1, 3, 3), delta[:, 9:]
 
@@ -85,7 +94,7 @@ class ViewAppearance(PerViewCorrection):
     def summary(self) -> Dict[str, object]:
         """Per view the colour matrix and offset, and the largest change of any entry."""
         matrices, offsets = self.transforms()
-        change = (self.correction * self.trained).clamp(-MAX_CHANGE, MAX_CHANGE).abs()
+        change = self._delta().abs()
         per_view = change[: self.num_views].max(-1).values.tolist() if self.num_views else []
         return {"mode": self.config.mode,
                 "matrix": [[[round(v, 4) for v in row] for row in m] for m in matrices[: self.num_views].tolist()],

@@ -146,7 +146,7 @@ class Model(nn.Module):
         report = getattr(getattr(self, "field", None), "diagnostics", None)
         out = dict(report()) if report is not None else {}
         if self.view_appearance is not None:
-            out["appearance_max"] = self.view_appearance.summary()["max_change"]
+            out["appearance_max"] = round(self.view_appearance.max_change(), 5)
         return out
 
     def sharpness(self) -> Optional[float]:
