@@ -155,7 +155,8 @@ class Trainer:
             announce=self.announce)
         self.step = 0
         self.train_seconds = 0.0
-        self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"))
+        self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"),
+                                   grace_steps=config.scheduler.warmup_steps)
 
     @property
     def bad_steps(self) -> int:
