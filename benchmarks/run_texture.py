@@ -1,7 +1,8 @@
 """Textured meshes against field renders on held-out views (issue 20).
 
 For each run folder: extract the mesh (marching cubes, 128^3), bake a texture from the training views with
-robust fusion and with plain angle-weighted averaging, render both by ray casting at every held-out view,
+robust fusion (per-view colour harmonisation, then a consensus) and with plain angle-weighted averaging
+(``--bakes`` adds robust fusion without the harmonisation and the average with it), render both by ray casting at every held-out view,
 and score them with the field's own renders (PSNR, SSIM, LPIPS). Also times the bake from 16 views (the
 4 inputs plus 12 held-out views as stand-ins) on the same mesh. One JSON line per run in --out; a table
 of all lines at the end.
@@ -31,6 +32,10 @@ from va_plugin.export.texture import (Views, bake_picture, bake_texture, check_t
                                       run_views)
 
 KEYS = ("psnr", "ssim", "lpips")
+BAKES = {"robust": dict(fusion="robust"),  # with the per-view colour harmonisation (the default)
+         "mean": dict(fusion="mean"),  # the plain angle-weighted average
+         "robust-plain": dict(fusion="robust", harmonise_views=False),
+         "mean-harmonised": dict(fusion="mean", harmonise_views=True)}
 
 
 def timing_views(pipeline, count: int) -> Views:
@@ -51,7 +56,7 @@ def timing_views(pipeline, count: int) -> Views:
     return Views(cameras, images.astype(np.float32))
 
 
-def evaluate(run: Path, size: int, max_views, timing_count: int) -> dict:
+def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean")) -> dict:
     pipeline, state = load_run(run, device="cpu")
     record = {"run": str(run), "steps": int(state["step"])}
     started = time.perf_counter()
@@ -63,9 +68,9 @@ def evaluate(run: Path, size: int, max_views, timing_count: int) -> dict:
     record["views"] = field["image_params"]["views"]
     fallback = field_fallback(pipeline.model)
     atlas = None
-    for fusion in ("robust", "mean"):
-        textured, report = bake_texture(mesh, run_views(pipeline), size=size, fusion=fusion, fallback=fallback,
-                                        atlas=atlas)
+    for fusion in bakes:
+        textured, report = bake_texture(mesh, run_views(pipeline), size=size, fallback=fallback, atlas=atlas,
+                                        **BAKES[fusion])
         atlas = (textured.vertices, textured.faces, textured.uv)  # unwrap once, bake twice
         scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False)
         record[fusion] = {**{k: scores[k] for k in KEYS}, **report.summary()}
@@ -103,7 +108,14 @@ def main(argv=None) -> int:
     parser.add_argument("--timing-views", type=int, default=16,
                         help="on the first run, also time a bake from this many views (0: no)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
+    parser.add_argument("--bakes", default="robust,mean",
+                        help=f"comma-separated bakes to score, from {', '.join(BAKES)} (robust and mean always)")
     args = parser.parse_args(argv)
+    bakes = [b.strip() for b in args.bakes.split(",") if b.strip()]
+    unknown = [b for b in bakes if b not in BAKES]
+    if unknown:
+        raise ConfigError(f"--bakes: unknown {', '.join(unknown)}; known: {', '.join(BAKES)}")
+    bakes = ["robust", "mean"] + [b for b in bakes if b not in ("robust", "mean")]
     check_texture_size(args.texture_size)
     torch.set_num_threads(args.threads)
     done = {}
@@ -114,7 +126,7 @@ def main(argv=None) -> int:
     for k, run in enumerate(args.runs):
         if str(run) in done:
             continue
-        record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0)
+        record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes)
         done[str(run)] = record
         with args.out.open("a") as f:
             f.write(json.dumps(record) + "\n")

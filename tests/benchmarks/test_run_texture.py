@@ -17,15 +17,19 @@ def run(tmp_path_factory):
 def test_scores_field_and_both_fusions_and_resumes(run, tmp_path, capsys):
     script = load_script("run_texture")
     out = tmp_path / "texture.jsonl"
-    argv = ["--runs", str(run), "--out", str(out), "--texture-size", "32", "--max-views", "1", "--timing-views", "6"]
+    argv = ["--runs", str(run), "--out", str(out), "--texture-size", "32", "--max-views", "1", "--timing-views", "6",
+            "--bakes", "robust-plain"]
     assert script.main(argv) == 0
     record = json.loads(out.read_text())
-    for part in ("field", "robust", "mean"):
+    for part in ("field", "robust", "mean", "robust-plain"):
         assert set(record[part]) >= {"psnr", "ssim", "lpips"}
+    assert "mean-harmonised" not in record
     assert record["robust"]["texels_seen"] > 0 and "bake" in record["bake_6_views_seconds"]
+    assert "view_colour_gain" in record["robust"] and "view_colour_gain" not in record["robust-plain"]
     assert (run / "texture_bake.png").exists()
     table = capsys.readouterr().out
     assert "| median |" in table and run.name in table
     assert script.main(argv) == 0  # a finished run is not redone
     assert len(out.read_text().splitlines()) == 1
-    assert script.main(argv[:-5] + ["100", "--max-views", "1"]) == 2  # not a power of two: one line, exit 2
+    assert script.main(argv[:-7] + ["100", "--max-views", "1"]) == 2  # not a power of two: one line, exit 2
+    assert script.main(argv[:-2] + ["--bakes", "median"]) == 2  # an unknown bake: one line, exit 2

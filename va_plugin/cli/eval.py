@@ -29,6 +29,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "held-out views (mesh_psnr, mesh_ssim, mesh_lpips)")
     parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
     parser.add_argument("--fusion", choices=("robust", "mean"), default="robust", help="per-texel fusion of the views")
+    parser.add_argument("--no-harmonise", action="store_true",
+                        help="robust fusion: skip levelling each view's colour gain and offset against the others")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
     parser.add_argument("--no-progress", action="store_true")
     return parser
@@ -81,11 +83,13 @@ def textured_mesh_scores(pipeline, mesh, args, use_lpips: bool):
 
     started = time.perf_counter()
     textured, report = bake_texture(mesh, run_views(pipeline), size=args.texture_size, fusion=args.fusion,
-                                    fallback=field_fallback(pipeline.model), progress=not args.no_progress)
+                                    fallback=field_fallback(pipeline.model), progress=not args.no_progress,
+                                    harmonise_views=False if args.no_harmonise else None)
     scores = textured_mesh_metrics(pipeline, textured, args.image_scale, args.max_views, use_lpips,
                                    progress=not args.no_progress)
     out = {f"mesh_{k}": scores[k] for k in ("psnr", "ssim", "lpips") if k in scores}
-    out["texture_params"] = {"size": args.texture_size, "fusion": args.fusion, **report.summary(),
+    out["texture_params"] = {"size": args.texture_size, "fusion": args.fusion,
+                             "harmonise": report.gains is not None, **report.summary(),
                              "seconds_total": round(time.perf_counter() - started, 2)}
     return out
 

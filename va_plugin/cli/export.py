@@ -24,6 +24,8 @@ def build_parser() -> argparse.ArgumentParser:
     mesh.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
     mesh.add_argument("--fusion", choices=("robust", "mean"), default="robust",
                       help="how disagreeing views are fused per texel: robust consensus or weighted mean")
+    mesh.add_argument("--no-harmonise", action="store_true",
+                      help="robust fusion: skip levelling each view's colour gain and offset against the others")
     mesh.add_argument("--use-inconsistency", action="store_true",
                       help="view-adaptive runs: weight each view down where its inconsistency map is high")
     render = sub.add_parser("render", help="held-out views and a turntable (PNG frames and MP4)")
@@ -78,7 +80,8 @@ def main(argv: Optional[List[str]] = None) -> int:
             from va_plugin.export.texture import texture_run_mesh
 
             textured, report, written = texture_run_mesh(pipeline, mesh, args.output, args.texture_size, args.fusion,
-                                                         args.use_inconsistency)
+                                                         args.use_inconsistency,
+                                                         harmonise_views=False if args.no_harmonise else None)
             seen = report.seen / max(report.covered, 1)
             print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces and a "
                   f"{args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view) written to "

@@ -53,6 +53,15 @@ NOISE_FLOOR = 0.02
 OUTLIER_SCALE = 2.0
 """A view deviating from the consensus by this many times its noise keeps 1/2 of its weight (Cauchy)."""
 ROBUST_ROUNDS = 3
+HARMONISE_ROUNDS = 8
+"""Reweighting rounds of the per-view colour fit (a blob on 10% of a view's texels needs ~6 to stop pulling)."""
+FIT_WEIGHT = 0.25
+"""Only texels that both views of a pair see well (weight >= this: within 60 degrees of head-on and away
+from their silhouette edges) enter the colour fit; grazing samples are blurred and misregistered."""
+RIDGE = 1e-2
+"""Pull of each view's colour offset towards 0 (and, 1e4 times weaker, of its gain towards 1, which pins a
+view that overlaps no other), per unit of the mean overlap weight of a view: a gain and an offset trade
+off on a surface of one colour."""
 INCONSISTENCY_SCALE = 0.05
 """With inconsistency maps: a view keeps exp(-map / this) of its weight (0.05 = a clear disagreement)."""
 PADDING_TEXELS = 16
@@ -113,14 +122,20 @@ class BakeReport:
     seen: int  # of those, texels at least one view sees
     view_texels: List[int]  # texels each view sees
     seconds: Dict[str, float] = field(default_factory=dict)
+    gains: Optional[np.ndarray] = None  # [n, 3] per-view colour gain of the harmonisation (None: off)
+    offsets: Optional[np.ndarray] = None  # [n, 3] per-view colour offset
 
     def summary(self) -> Dict[str, object]:
         total = np.maximum(self.weight_maps.sum(0), 1e-12)
         share = [float(m.sum() / max(total[total > 1e-12].size, 1)) for m in self.weight_maps]
-        return {"texels_on_surface": self.covered, "texels_seen": self.seen,
-                "texels_fallback": self.covered - self.seen, "view_texels": self.view_texels,
-                "view_share": [round(s, 4) for s in share],
-                "seconds": {k: round(v, 2) for k, v in self.seconds.items()}}
+        out = {"texels_on_surface": self.covered, "texels_seen": self.seen,
+               "texels_fallback": self.covered - self.seen, "view_texels": self.view_texels,
+               "view_share": [round(s, 4) for s in share],
+               "seconds": {k: round(v, 2) for k, v in self.seconds.items()}}
+        if self.gains is not None:
+            out["view_colour_gain"] = np.round(self.gains, 4).tolist()
+            out["view_colour_offset"] = np.round(self.offsets, 4).tolist()
+        return out
 
 
 def check_texture_size(size: int) -> None:
@@ -300,6 +315,69 @@ def view_noise(residual: np.ndarray, visible: np.ndarray) -> np.ndarray:
     return np.clip(noise, NOISE_FLOOR, cap)
 
 
+def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS):
+    """Per-view colour gain and offset that make the views agree where they overlap: ``gains, offsets
+    [n, 3]`` with view ``reference`` fixed at (1, 0) (the generator's conditioning view by this project's
+    convention, as for the per-view camera and appearance corrections).
+
+    Per channel, a weighted least-squares fit of ``a_k c_k + b_k = a_l c_l + b_l`` over every texel that two
+    views k and l both see well (weights >= FIT_WEIGHT; weight sqrt(w_k w_l)), with a ridge towards (1, 0)
+    (see RIDGE) so that a view without overlaps stays as it is; reweighting rounds (Cauchy, scale from
+    the median residual) keep blobs, occlusion errors and misregistered edges out of the fit. Gains are clipped to [0.5, 2],
+    offsets to [-0.3, 0.3]."""
+    m, n = weights.shape
+    gains, offsets = np.ones((n, 3), np.float64), np.zeros((n, 3), np.float64)
+    if n < 2:
+        return gains.astype(np.float32), offsets.astype(np.float32)
+    visible = weights >= FIT_WEIGHT
+    pairs = []
+    for k in range(n):
+        for l in range(k + 1, n):
+            both = np.nonzero(visible[:, k] & visible[:, l])[0]
+            if len(both):
+                pairs.append((k, l, both, np.sqrt(weights[both, k] * weights[both, l]).astype(np.float64)))
+    if not pairs:
+        return gains.astype(np.float32), offsets.astype(np.float32)
+    ridge = RIDGE * sum(float(w.sum()) for *_, w in pairs) / n + 1e-9
+    for channel in range(3):
+        robust = [np.ones(len(both)) for _, _, both, _ in pairs]
+        for _ in range(rounds + 1):
+            normal = np.zeros((2 * n, 2 * n))
+            rhs = np.zeros(2 * n)
+            for (k, l, both, w), r in zip(pairs, robust):
+                ck, cl = colours[both, k, channel].astype(np.float64), colours[both, l, channel].astype(np.float64)
+                g = np.stack([ck, np.ones_like(ck), -cl, -np.ones_like(cl)], -1)  # d residual / d (a_k, b_k, a_l, b_l)
+                block = np.einsum("t,ti,tj->ij", w * r, g, g)
+                index = [2 * k, 2 * k + 1, 2 * l, 2 * l + 1]
+                normal[np.ix_(index, index)] += block
+            # towards a = 1, b = 0: the offsets firmly (a gain and an offset trade off on a surface of one
+            # colour), the gains only enough to pin a view that overlaps no other
+            normal[np.arange(1, 2 * n, 2), np.arange(1, 2 * n, 2)] += ridge
+            normal[np.arange(0, 2 * n, 2), np.arange(0, 2 * n, 2)] += 1e-4 * ridge
+            rhs[0::2] += 1e-4 * ridge
+            keep = [i for i in range(2 * n) if i // 2 != reference]
+            fixed = np.array([1.0, 0.0])
+            rhs_k = rhs[keep] - normal[np.ix_(keep, [2 * reference, 2 * reference + 1])] @ fixed
+            solution = np.linalg.solve(normal[np.ix_(keep, keep)], rhs_k)
+            x = np.empty(2 * n)
+            x[keep] = solution
+            x[[2 * reference, 2 * reference + 1]] = fixed
+            gains[:, channel] = np.clip(x[0::2], 0.5, 2.0)
+            offsets[:, channel] = np.clip(x[1::2], -0.3, 0.3)
+            residuals = [gains[k, channel] * colours[both, k, channel] + offsets[k, channel]
+                         - gains[l, channel] * colours[both, l, channel] - offsets[l, channel]
+                         for k, l, both, _ in pairs]
+            scale = max(1.4826 * float(np.median(np.abs(np.concatenate(residuals)))), 1e-3)
+            robust = [1.0 / (1.0 + (res / (OUTLIER_SCALE * scale)) ** 2) for res in residuals]
+    return gains.astype(np.float32), offsets.astype(np.float32)
+
+
+def apply_harmonisation(colours: np.ndarray, weights: np.ndarray, gains: np.ndarray, offsets: np.ndarray) -> np.ndarray:
+    """``colours [m, n, 3]`` with each view's gain and offset applied where it sees the point (clipped to [0, 1])."""
+    out = np.clip(colours * gains[None] + offsets[None], 0.0, 1.0).astype(np.float32)
+    return np.where((weights > 0)[..., None], out, colours)
+
+
 def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
     """Fused colour ``[m, 3]`` and the final per-view weights ``[m, n]`` (normalised per point; zero rows
     where no view sees the point)."""
@@ -345,9 +423,12 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
-                 fallback: Optional[Fallback] = None, progress: bool = False, atlas=None):
+                 fallback: Optional[Fallback] = None, progress: bool = False, atlas=None,
+                 harmonise_views: Optional[bool] = None):
     """UV-unwrap ``mesh`` and bake its texture from ``views``: ``(TexturedMesh, BakeReport)``. ``atlas``:
     the ``(vertices, faces, uv)`` of an earlier :func:`unwrap` of the same mesh at the same size, reused.
+    ``harmonise_views``: level each view's colours against the others (:func:`harmonise`) before fusing;
+    None: with robust fusion only (mean fusion stays the plain angle-weighted average).
 
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
@@ -377,6 +458,10 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
                       f"{'' if len(blind) > 1 else 's'} no texel of the mesh (the mesh lies outside "
                       f"{'their' if len(blind) > 1 else 'its'} image or mask): the mesh and the run's cameras "
                       "do not fit together")
+    gains = offsets = None
+    if harmonise_views if harmonise_views is not None else fusion == "robust":
+        gains, offsets = harmonise(colours, weights)
+        colours = apply_harmonisation(colours, weights, gains, offsets)
     fused, share = fuse(colours, weights, fusion)
     seen = share.sum(1) > 0
     if fallback is not None and (~seen).any():
@@ -393,7 +478,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     image = dilate(image, filled)
     maps = np.zeros((len(views), size, size), np.float32)
     maps[:, rows, cols] = share.T
-    report = BakeReport(maps, int(covered.sum()), int(seen.sum()), view_texels, seconds)
+    report = BakeReport(maps, int(covered.sum()), int(seen.sum()), view_texels, seconds, gains, offsets)
     return TexturedMesh(vertices, faces, uv, np.clip(image, 0.0, 1.0)), report
 
 
@@ -499,7 +584,7 @@ def write_bake_record(report: BakeReport, path: Path, extra: Optional[Dict[str, 
 
 
 def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 1024, fusion: str = "robust",
-                     inconsistency: bool = False, progress: bool = True):
+                     inconsistency: bool = False, progress: bool = True, harmonise_views: Optional[bool] = None):
     """Bake ``mesh`` from a loaded run's training views (field colour where none sees), write it to
     ``output`` (GLB or OBJ+MTL+PNG) with ``<stem>_bake.png`` (atlas | per-view weight maps) and
     ``<stem>_bake.json`` beside it; returns ``(TexturedMesh, BakeReport, written paths)``."""
@@ -507,7 +592,7 @@ def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 
     check_texture_output(output)
     views = run_views(pipeline, inconsistency=inconsistency, progress=progress)
     textured, report = bake_texture(mesh, views, size=size, fusion=fusion, fallback=field_fallback(pipeline.model),
-                                    progress=progress)
+                                    progress=progress, harmonise_views=harmonise_views)
     written = write_textured_mesh(textured, output)
     written.append(bake_picture(textured, report, output.with_name(output.stem + "_bake.png")))
     written.append(write_bake_record(report, output.with_name(output.stem + "_bake.json"),
