@@ -56,15 +56,30 @@ def timing_views(pipeline, count: int) -> Views:
     return Views(cameras, images.astype(np.float32))
 
 
-def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean")) -> dict:
+def field_scores(pipeline, run: Path, max_views, reuse: bool) -> dict:
+    """The field's held-out scores: from ``RUN/bench_row.json`` (written by run_backbone / run_table1 after
+    scoring every held-out view) when ``reuse`` and every view is asked for, else rendered here."""
+    row_file = run / "bench_row.json"
+    if reuse and max_views is None and row_file.exists():
+        row = json.loads(row_file.read_text())
+        views = row.get("evaluation", {}).get("image_params", {}).get("views")
+        if views is not None and all(k in row for k in KEYS):
+            return {**{k: row[k] for k in KEYS}, "image_params": {"views": views}, "from": str(row_file)}
+    return image_metrics(pipeline, max_views=max_views, progress=False)
+
+
+def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean"),
+             reuse_field: bool = False) -> dict:
     pipeline, state = load_run(run, device="cpu")
     record = {"run": str(run), "steps": int(state["step"])}
     started = time.perf_counter()
     mesh = extract_mesh(pipeline.model, resolution=128, with_color=False)
     record["mesh_seconds"] = round(time.perf_counter() - started, 2)
     record["vertices"], record["faces"] = len(mesh.vertices), len(mesh.faces)
-    field = image_metrics(pipeline, max_views=max_views, progress=False)
+    field = field_scores(pipeline, run, max_views, reuse_field)
     record["field"] = {k: field[k] for k in KEYS}
+    if "from" in field:
+        record["field_from"] = field["from"]
     record["views"] = field["image_params"]["views"]
     fallback = field_fallback(pipeline.model)
     atlas = None
@@ -110,6 +125,9 @@ def main(argv=None) -> int:
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--bakes", default="robust,mean",
                         help=f"comma-separated bakes to score, from {', '.join(BAKES)} (robust and mean always)")
+    parser.add_argument("--reuse-field-scores", action="store_true",
+                        help="take the field's scores from RUN/bench_row.json (all held-out views, written by "
+                        "run_backbone) instead of rendering them again; needs no --max-views")
     args = parser.parse_args(argv)
     bakes = [b.strip() for b in args.bakes.split(",") if b.strip()]
     unknown = [b for b in bakes if b not in BAKES]
@@ -126,7 +144,8 @@ def main(argv=None) -> int:
     for k, run in enumerate(args.runs):
         if str(run) in done:
             continue
-        record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes)
+        record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes,
+                          args.reuse_field_scores)
         done[str(run)] = record
         with args.out.open("a") as f:
             f.write(json.dumps(record) + "\n")

@@ -33,3 +33,25 @@ def test_scores_field_and_both_fusions_and_resumes(run, tmp_path, capsys):
     assert len(out.read_text().splitlines()) == 1
     assert script.main(argv[:-7] + ["100", "--max-views", "1"]) == 2  # not a power of two: one line, exit 2
     assert script.main(argv[:-2] + ["--bakes", "median"]) == 2  # an unknown bake: one line, exit 2
+
+
+def test_field_scores_can_come_from_the_benchmark_row(run, tmp_path):
+    """--reuse-field-scores reads RUN/bench_row.json (every held-out view) instead of rendering the field
+    again; with --max-views the field is rendered here as before."""
+    import shutil
+
+    script = load_script("run_texture")
+    copy = tmp_path / "run"
+    shutil.copytree(run, copy)
+    row = {"psnr": 1.5, "ssim": 0.25, "lpips": 0.75, "evaluation": {"image_params": {"views": 3}}}
+    (copy / "bench_row.json").write_text(json.dumps(row))
+    out = tmp_path / "a.jsonl"
+    base = ["--runs", str(copy), "--texture-size", "32", "--timing-views", "0", "--reuse-field-scores"]
+    assert script.main(base + ["--out", str(out)]) == 0
+    record = json.loads(out.read_text())
+    assert record["field"] == {"psnr": 1.5, "ssim": 0.25, "lpips": 0.75} and record["views"] == 3
+    assert record["field_from"].endswith("bench_row.json")
+    out = tmp_path / "b.jsonl"
+    assert script.main(base + ["--out", str(out), "--max-views", "1"]) == 0
+    record = json.loads(out.read_text())
+    assert record["field"]["psnr"] != 1.5 and "field_from" not in record

@@ -184,41 +184,42 @@ def test_inconsistency_maps_weight_a_view_down_where_it_disagrees():
     assert np.allclose(flagged.weight_maps[0][alone], 1.0)
 
 
-def test_harmonise_recovers_each_views_gain_and_offset_against_the_reference():
+def test_harmonise_recovers_each_views_gains_against_the_reference():
     """Three views of the same colours, view 1 brighter, view 2 darker with a blob of wrong colour on 10% of
-    its points: the fitted per-view maps undo the gains (view 0 stays fixed), the blob does not bend them."""
+    its points: the fitted per-view gains undo the casts (view 0 stays fixed), the blob does not bend them."""
     rng = np.random.default_rng(0)
     truth = rng.uniform(0.1, 0.8, size=(2000, 3)).astype(np.float32)
-    gain = np.array([[1.0, 1.0, 1.0], [1.2, 1.1, 0.9], [0.85, 0.9, 1.05]], np.float32)
-    offset = np.array([[0.0, 0.0, 0.0], [-0.05, 0.02, 0.0], [0.03, 0.0, -0.02]], np.float32)
-    colours = truth[:, None] * gain[None] + offset[None]
+    gain = np.array([[1.0, 1.0, 1.0], [1.12, 1.08, 0.92], [0.88, 0.92, 1.06]], np.float32)
+    colours = truth[:, None] * gain[None]
     colours[:200, 2] = [0.9, 0.1, 0.9]  # a hallucinated blob in view 2
     weights = np.ones((2000, 3), np.float32)
     weights[1000:, 1] = 0.0  # view 1 sees half the points
-    gains, offsets = harmonise(colours, weights)
-    np.testing.assert_allclose(gains[0], 1.0) and np.testing.assert_allclose(offsets[0], 0.0)
-    np.testing.assert_allclose(gains[1:], 1.0 / gain[1:], atol=0.01)
-    np.testing.assert_allclose(offsets[1:], -offset[1:] / gain[1:], atol=0.006)
-    fixed = apply_harmonisation(colours, weights, gains, offsets)
-    assert np.abs(fixed[200:, 2] - truth[200:]).max() < 0.01 and np.abs(fixed[:1000, 1] - truth[:1000]).max() < 0.01
+    gains = harmonise(colours, weights)
+    np.testing.assert_array_equal(gains[0], 1.0)
+    np.testing.assert_allclose(gains[1:], 1.0 / gain[1:], rtol=0.005)
+    fixed = apply_harmonisation(colours, weights, gains)
+    assert np.abs(fixed[200:, 2] - truth[200:]).max() < 0.005 and np.abs(fixed[:1000, 1] - truth[:1000]).max() < 0.005
     np.testing.assert_array_equal(fixed[1000:, 1], colours[1000:, 1])  # where a view sees nothing, nothing changes
+    colours[:, 1] *= 1.3  # beyond the trusted cast (MAX_GAIN): view 1 is left alone, view 2 still fitted
+    gains = harmonise(colours, weights)
+    np.testing.assert_array_equal(gains[1], 1.0)
+    np.testing.assert_allclose(gains[2], 1.0 / gain[2], rtol=0.005)
 
 
 def test_harmonise_leaves_views_without_overlap_alone():
     colours = np.random.default_rng(1).uniform(size=(100, 2, 3)).astype(np.float32)
     weights = np.zeros((100, 2), np.float32)
     weights[:50, 0] = weights[50:, 1] = 1.0
-    gains, offsets = harmonise(colours, weights)
-    np.testing.assert_array_equal(gains, 1.0) and np.testing.assert_array_equal(offsets, 0.0)
+    np.testing.assert_array_equal(harmonise(colours, weights), 1.0)
 
 
 def test_a_view_with_a_colour_cast_is_levelled_before_fusion():
-    """The cube seen from all sides, one view with a 25% red gain: with harmonisation the baked colours
+    """The cube seen from all sides, one view with a 15% red gain: with harmonisation the baked colours
     stay as close to the truth as without the cast; without it, that view's texels come out red."""
     mesh = cube()
     views = cube_views(mesh, SIX_SIDES["azimuths"], SIX_SIDES["elevations"])
     cast = views.images.copy()
-    cast[1] = np.where(views.masks[1][..., None], np.clip(cast[1] * [1.25, 1.0, 1.0], 0, 1), cast[1])
+    cast[1] = np.where(views.masks[1][..., None], np.clip(cast[1] * [1.15, 1.0, 1.0], 0, 1), cast[1])
     tinted = Views(views.cameras, cast, views.masks)
     errors = {}
     for harmonised in (True, False):
@@ -228,4 +229,4 @@ def test_a_view_with_a_colour_cast_is_levelled_before_fusion():
     clean, _ = bake_texture(mesh, views, size=TEXTURE, fusion="mean")
     covered, points = texel_truth(clean)
     baseline = np.abs(clean.image[covered] - smooth_colour(points)).mean()
-    assert errors[True] < baseline + 0.001 and errors[False] > 2 * errors[True]
+    assert errors[True] < baseline + 0.001 and errors[False] > 1.8 * errors[True]
