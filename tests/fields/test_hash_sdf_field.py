@@ -147,20 +147,3 @@ def test_colour_inputs_follow_the_config():
 def test_bad_options_are_one_line_errors(bad):
     with pytest.raises(ConfigError):
         HashSDFFieldConfig(**bad).setup()
-
-
-def test_colour_from_grid_reads_the_grid_and_trains_it():
-    """With color_from_grid the geometry feature carries the grid's features (equal on the analytic-gradient
-    path and the plain one), and a colour loss alone reaches the hash table directly."""
-    x = _points(16)
-    field = _small_field(color_from_grid=True)
-    sdf, feat = field.geometry(x)
-    sdf2, feat2, _ = field.geometry_and_gradient(x)
-    assert feat.shape == (16, field.config.geo_feature_dim + field.encoding.output_dim)
-    torch.testing.assert_close(feat, feat2) and torch.testing.assert_close(sdf, sdf2)
-    torch.testing.assert_close(feat[:, field.config.geo_feature_dim:], field.encoding(x))
-    normals = torch.nn.functional.normalize(x, dim=-1)
-    field.color(x, normals, normals, feat)["rgb"].sum().backward()
-    assert field.encoding.table.grad.abs().sum() > 0
-    plain = _small_field()
-    assert plain.geometry(x)[1].shape == (16, plain.config.geo_feature_dim)

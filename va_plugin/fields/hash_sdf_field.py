@@ -55,9 +55,6 @@ class HashSDFFieldConfig(HashGridFieldConfig):
     """Hidden layers of the colour MLP."""
     use_normal: bool = True
     """Feed the surface normal to the colour MLP."""
-    color_from_grid: bool = False
-    """Also feed the hash grid's own features to the colour MLP: a path for texture detail that does not
-    have to squeeze through the SDF MLP's geometry feature."""
     direction_frequencies: int = -1
     """The view direction in the colour MLP: -1 leaves it out (view-independent colour, the default
     for few views), 0 feeds the raw direction, k > 0 adds k frequency bands."""
@@ -82,8 +79,7 @@ class HashSDFField(Field):
         self.sdf_net = MLP(3 + self.encoding.output_dim, config.sdf_width, config.sdf_layers,
                            1 + config.geo_feature_dim, activation=nn.Softplus(beta=config.softplus_beta))
         self.direction_encoding = optional_direction_encoding(config.direction_frequencies)
-        color_in = config.geo_feature_dim + (self.encoding.output_dim if config.color_from_grid else 0) + \
-            (3 if config.use_normal else 0) + \
+        color_in = config.geo_feature_dim + (3 if config.use_normal else 0) + \
             (self.direction_encoding.output_dim if self.direction_encoding is not None else 0)
         self.color_net = MLP(color_in, config.color_width, config.color_layers, 3, out_activation=nn.Sigmoid())
         self.feature_dim = config.color_width
@@ -132,13 +128,8 @@ class HashSDFField(Field):
         return torch.cat([positions, self.encoding(positions)], dim=-1)
 
     def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
-        encoded = self.encoding(positions)
-        out = self._with_grid_features(self.sdf_net(torch.cat([positions, encoded], dim=-1)), encoded)
+        out = self.sdf_net(self._inputs(positions))
         return out[..., :1], out[..., 1:]
-
-    def _with_grid_features(self, out: torch.Tensor, encoded: torch.Tensor) -> torch.Tensor:
-        """The SDF MLP's output ``[..., 1 + G]``, with the grid's features appended when the colour reads them."""
-        return torch.cat([out, encoded], dim=-1) if self.config.color_from_grid else out
 
     def sdf(self, positions: torch.Tensor) -> torch.Tensor:
         """SDF only, ``[..., 1]``."""
@@ -163,7 +154,7 @@ class HashSDFField(Field):
         """The SDF MLP's output ``[n, 1 + G]`` and the SDF's gradient ``[n, 3]`` at points ``[n, 3]``."""
         encoded, pullback = self.encoding.forward_with_pullback(flat)
         out, grad_in = mlp_with_input_gradient(self.sdf_net, torch.cat([flat, encoded], dim=-1))
-        return self._with_grid_features(out, encoded), grad_in[:, :3] + pullback(grad_in[:, 3:])
+        return out, grad_in[:, :3] + pullback(grad_in[:, 3:])
 
     def _finite_difference(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         step = self.finite_difference_step()
