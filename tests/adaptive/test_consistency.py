@@ -1,6 +1,8 @@
 """The silhouette support test: a sphere's exact masks are supported everywhere; a view whose mask is
 shifted (a generator's pose drift) or grown (shape drift) is not; too few views give no verdict."""
 
+import numpy as np
+import pytest
 import torch
 
 from va_plugin.adaptive.consistency import silhouette_support
@@ -63,3 +65,40 @@ def test_the_phase_decision_reads_the_training_masks():
     manager = SimpleNamespace(cameras=cameras, masks=shifted[..., None].float(), scene_radius=1.0)
     assert not input_silhouette_support(manager).consistent
     assert input_silhouette_support(SimpleNamespace(cameras=cameras, masks=None, scene_radius=1.0)) is None
+
+
+def test_colour_cast_separates_a_white_balance_shift_from_brightness():
+    """Hand-computed: a common gain is brightness, not a cast; a per-channel spread is."""
+    from va_plugin.adaptive.consistency import ColourCast
+
+    bright = ColourCast(np.array([[1.0, 1.0, 1.0], [1.1, 1.1, 1.1]]), points=10, seconds=0.0)
+    assert bright.worst == pytest.approx(0.0, abs=1e-9) and bright.brightness == pytest.approx(np.log(1.1))
+    tinted = ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95]]), points=10, seconds=0.0)
+    logs = np.log([1.05, 1.0, 0.95])
+    assert tinted.worst == pytest.approx(np.max(np.abs(logs - logs.mean())))
+    assert tinted.as_dict()["test"] == "colour_cast" and len(tinted.as_dict()["gains"]) == 2
+
+
+def test_colour_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
+    """On a (tiny) trained run of 8 views: tinting view 2's object by (1.1, 1, 0.9) divides its fitted gains
+    by the tint and leaves view 0 at 1 (the gains themselves are far from 1 here: the start sphere does not
+    register the mug's views; what the test checks is that the fit reads the views' colour ratios)."""
+    from conftest import tiny_config
+    from va_plugin.adaptive.consistency import colour_cast
+    from va_plugin.cli.run import load_run
+    from va_plugin.data.scenes.builder import build_procedural_scene
+    from va_plugin.export.texture import run_views
+
+    # after 2 steps the surface is still the start sphere: 8 views, so that neighbours share points of it
+    scene = build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=8, resolution=64)
+    run = tmp_path_factory.mktemp("run")
+    tiny_config("neus", scene, run, steps=2).setup().train()
+    pipeline, _ = load_run(run, "cpu")
+    views = run_views(pipeline)
+    before = colour_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=32)
+    tint = np.array([1.1, 1.0, 0.9], np.float32)
+    images = views.images.copy()
+    images[2] = np.where(views.masks[2][..., None], np.clip(images[2] * tint, 0, 1), images[2])
+    after = colour_cast(pipeline.model, views.cameras, images, views.masks, resolution=32)
+    assert before.points > 0 and np.all(after.gains[0] == 1.0)
+    np.testing.assert_allclose(after.gains[2], before.gains[2] / tint, rtol=0.03)

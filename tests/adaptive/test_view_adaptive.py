@@ -158,16 +158,42 @@ def test_inputs_look_consistent_thresholds_the_spread():
 
 
 def test_a_consistent_scene_skips_the_adaptive_phases(tiny_scene, tmp_path):
-    # a huge threshold: whatever the residuals, the scene counts as consistent
+    # huge thresholds: whatever the residuals and colour casts, the scene counts as consistent
     trainer = tiny_config("va-neus", tiny_scene, tmp_path / "run", steps=3,
-                          **{"pipeline.model.field.consistent_residual_db": 1000.0}).setup()
+                          **{"pipeline.model.field.consistent_residual_db": 1000.0,
+                             "pipeline.model.field.consistent_colour_cast": 1000.0}).setup()
     trainer.train()
     field = trainer.model.field
     assert field.current_phase == PRETRAIN and bool(field.skipped)
     assert all(p.grad is None for p in field.branches.parameters())
     record = json.loads((tmp_path / "run" / RESIDUALS_FILE).read_text())
     assert record["consistent"] and len(record["views"]) == 4
+    assert "colour_cast" in record  # None here: on the tiny scene no surface point is seen by two views
     assert trainer.lr_multipliers["fields"] == 1.0
+
+
+
+def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, monkeypatch):
+    """Residuals and silhouettes say consistent; a view whose fitted gains are 5% apart across channels
+    (above the 3% threshold) makes the scene inconsistent, and the record says why."""
+    import numpy as np
+
+    from va_plugin.adaptive import phases
+    from va_plugin.adaptive.consistency import ColourCast
+
+    def fake_cast(model, cameras, images, masks, resolution):
+        return ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]), 100, 0.0)
+
+    monkeypatch.setattr(phases, "colour_cast", fake_cast)
+    monkeypatch.setattr(phases, "input_silhouette_support", lambda datamanager: None)
+    trainer = tiny_config("va-neus", tiny_scene, tmp_path / "run", steps=3,
+                          **{"pipeline.model.field.consistent_residual_db": 1000.0}).setup()
+    trainer.train()
+    assert trainer.model.field.current_phase == FUSION and not bool(trainer.model.field.skipped)
+    record = json.loads((tmp_path / "run" / RESIDUALS_FILE).read_text())
+    assert record["residuals_consistent"] and not record["consistent"]
+    assert record["colour_cast"]["consistent"] is False and record["colour_cast"]["threshold"] == 0.03
+    assert abs(record["colour_cast"]["worst_chroma"] - 0.0496) < 1e-3
     # a threshold of 0 dB: real inputs never agree that well, so the adaptive phases run
     forced = tiny_config("va-neus", tiny_scene, tmp_path / "run2", steps=3,
                          **{"pipeline.model.field.consistent_residual_db": 0.0}).setup()
@@ -181,6 +207,7 @@ def test_a_consistent_scene_skips_the_adaptive_phases(tiny_scene, tmp_path):
     ({"pretrain_fraction": 0.8, "branch_fraction": 0.5}, "sum to at most 1"),
     ({"attention_dim": 10, "attention_heads": 4}, "multiple"),
     ({"min_sample_weight": -1.0}, ">= 0"),
+    ({"consistent_colour_cast": -0.1}, ">= 0"),
 ])
 def test_bad_options_are_refused_with_a_message(options, match):
     with pytest.raises(ConfigError, match=match):

@@ -107,3 +107,61 @@ def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: floa
         counts.append(int(inside.numel()))
     return SilhouetteSupport(fractions, counts, threshold)
 
+
+
+@dataclass
+class ColourCast:
+    """Per-view colour gains that make the training views agree on the shared surface (view 0 fixed at 1)."""
+
+    gains: np.ndarray  # [n, 3]
+    points: int  # surface points the fit used (seen by two views)
+    seconds: float
+
+    @property
+    def log_gains(self) -> np.ndarray:
+        return np.log(np.clip(self.gains, 1e-6, None))
+
+    @property
+    def worst(self) -> float:
+        """The largest chromatic deviation: per view, the log gain of a channel minus the view's mean log
+        gain (a white-balance shift; a common brightness factor is left out, since the same surface seen
+        from another side is lit differently even in consistent renders: 3-4% on the clean GSO alarm)."""
+        logs = self.log_gains
+        return float(np.max(np.abs(logs - logs.mean(1, keepdims=True)))) if logs.size else 0.0
+
+    @property
+    def brightness(self) -> float:
+        """The largest deviation of a view's mean log gain from view 0's."""
+        return float(np.max(np.abs(self.log_gains.mean(1)))) if self.gains.size else 0.0
+
+    def as_dict(self) -> dict:
+        return {"test": "colour_cast", "worst_chroma": round(self.worst, 5), "worst_brightness":
+                round(self.brightness, 5), "points": self.points, "seconds": round(self.seconds, 2),
+                "gains": np.round(self.gains, 4).tolist()}
+
+
+@torch.no_grad()
+def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: Optional[np.ndarray] = None,
+                resolution: int = 64, max_gain: float = float("inf")) -> ColourCast:
+    """How far apart the views' colours are on the shared surface: the per-view gains of the texture
+    bake's harmonisation (:func:`va_plugin.export.texture.harmonise`, every fit kept), fitted on the
+    vertices of a ``resolution``^3 marching-cubes mesh of ``model`` projected into every view
+    (``images [n, H, W, 3]`` composited, ``masks [n, H, W]`` bool or None). A colour cast is what a
+    generator gets wrong that no silhouette shows; a field with a view-independent colour cannot fit
+    it away either. Raises VAError when the model has no surface."""
+    import time
+
+    from va_plugin.data.scenes.raycast import smooth_vertex_normals
+    from va_plugin.export.mesh import extract_mesh
+    from va_plugin.export.texture import Views, harmonise, view_samples
+
+    started = time.perf_counter()
+    mesh = extract_mesh(model, resolution=resolution, with_color=False)
+    vertices = np.asarray(mesh.vertices, np.float32)
+    faces = np.asarray(mesh.faces, np.int64)
+    normals = smooth_vertex_normals(vertices, faces)
+    views = Views(cameras.to(torch.device("cpu")), images, masks)
+    colours, weights, _ = view_samples(vertices, faces, vertices, normals, views)
+    gains = harmonise(colours, weights, max_gain=max_gain)
+    shared = int(((weights > 0).sum(1) >= 2).sum())
+    return ColourCast(gains, shared, time.perf_counter() - started)

@@ -88,6 +88,10 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
     consistent_residual_db: float = 1.0
     """Threshold of that test: the largest per-view PSNR shortfall below the best view, in dB."""
+    consistent_colour_cast: float = 0.03
+    """Threshold of the colour-cast test of the same decision: the largest chromatic shift (log gain of a
+    channel minus the view's mean) between a view and view 0 on the shared surface
+    (:func:`va_plugin.adaptive.consistency.colour_cast`); 0 turns the test off."""
     diagnostics_scale: float = 0.5
     """At the end of training, write the attention heat map and the per-view inconsistency maps to the
     run folder, rendered at this fraction of the input resolution (0: don't)."""
@@ -105,9 +109,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
             raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
                               f"{self.pretrain_fraction} and {self.branch_fraction}")
         if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale, self.min_sample_weight,
-               self.diagnostics_scale, self.fused_samples_per_ray) < 0:
+               self.diagnostics_scale, self.fused_samples_per_ray, self.consistent_colour_cast) < 0:
             raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale, min_sample_weight, "
-                              "diagnostics_scale and fused_samples_per_ray must be >= 0")
+                              "diagnostics_scale, fused_samples_per_ray and consistent_colour_cast must be >= 0")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:

@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING, Dict, List
 
 import torch
 
-from va_plugin.adaptive.consistency import silhouette_support
+from va_plugin.adaptive.consistency import colour_cast, silhouette_support
 from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.rays import RayBundle
@@ -31,6 +31,8 @@ PRETRAIN, BRANCHES, FUSION = 1, 2, 3
 PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branches", FUSION: "self-attention fusion"}
 
 RESIDUALS_FILE = "view_residuals.json"
+COLOUR_CAST_GRID = 96
+"""Marching-cubes grid of the surface the colour-cast test fits on (2-3 s on one thread at 4 views)."""
 
 
 def phase_at(step: int, max_steps: int, pretrain_fraction: float, branch_fraction: float) -> int:
@@ -146,31 +148,54 @@ def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
 
 
 def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttributes, step: int) -> bool:
-    """Measure the per-view residuals and the silhouette support once, record them, and say whether to
-    skip the adaptive phases: only when both say the inputs agree (the residual test alone called real
-    generator outputs consistent: a field can fit their disagreement away; the silhouettes cannot be)."""
+    """Measure the per-view residuals, the silhouette support and the colour cast once, record them, and
+    say whether to skip the adaptive phases: only when all three say the inputs agree (the residual test
+    alone called real generator outputs consistent: a field can fit their disagreement away; the
+    silhouettes and the colours of a view-independent field cannot be)."""
     residuals = view_residuals(attributes.pipeline)
     residual_ok = inputs_look_consistent(residuals, field.config.consistent_residual_db)
     support = input_silhouette_support(attributes.pipeline.datamanager)
-    consistent = residual_ok and (support is None or support.consistent)
+    cast = input_colour_cast(attributes.pipeline, field.config.consistent_colour_cast)
+    colour_ok = cast is None or cast.worst <= field.config.consistent_colour_cast
+    consistent = residual_ok and (support is None or support.consistent) and colour_ok
     record = {"step": step, "threshold_db": field.config.consistent_residual_db, "consistent": consistent,
               "residuals_consistent": residual_ok, "views": residuals,
-              "silhouette_support": support.as_dict() if support is not None else None}
+              "silhouette_support": support.as_dict() if support is not None else None,
+              "colour_cast": None if cast is None else {**cast.as_dict(), "consistent": colour_ok,
+                                                        "threshold": field.config.consistent_colour_cast}}
     run_dir = Path(attributes.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / RESIDUALS_FILE).write_text(json.dumps(record, indent=2))
     key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
     spread = max(r[key] for r in residuals) - min(r[key] for r in residuals)
-    unsupported = f", silhouettes {100 * support.worst:.2f}% unsupported" if support is not None else ""
+    details = f", silhouettes {100 * support.worst:.2f}% unsupported" if support is not None else ""
+    details += f", colour cast {100 * cast.worst:.1f}%" if cast is not None else ""
     if consistent:
         field.skipped.fill_(True)
         attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB <= "
-                                  f"{field.config.consistent_residual_db} dB{unsupported}): adaptive phases "
+                                  f"{field.config.consistent_residual_db} dB{details}): adaptive phases "
                                   "skipped; force them with skip_consistent_scenes=false", skipped_adaptive=True)
     else:
-        attributes.announce(step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB{unsupported}): "
+        attributes.announce(step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB{details}): "
                                   "adaptive phases on", residual_spread_db=spread)
     return consistent
+
+
+def input_colour_cast(pipeline, threshold: float):
+    """:func:`colour_cast` of the shared field on the training views; None when the test is off
+    (``threshold`` 0), with fewer than two views, when the field has no surface yet, or when no surface
+    point is seen by two views (then the other tests decide)."""
+    from va_plugin.errors import VAError
+    from va_plugin.export.texture import run_views
+
+    if threshold <= 0 or pipeline.datamanager.num_train_views < 2:
+        return None
+    views = run_views(pipeline)
+    try:
+        cast = colour_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=COLOUR_CAST_GRID)
+    except VAError:
+        return None
+    return cast if cast.points > 0 else None
 
 
 def input_silhouette_support(datamanager):

@@ -316,7 +316,8 @@ def view_noise(residual: np.ndarray, visible: np.ndarray) -> np.ndarray:
     return np.clip(noise, NOISE_FLOOR, cap)
 
 
-def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS):
+def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS,
+              max_gain: float = None):
     """Per-view colour gains that make the views agree where they overlap: ``gains [n, 3]`` with view
     ``reference`` fixed at 1 (the generator's conditioning view by this project's convention, as for the
     per-view camera and appearance corrections).
@@ -327,7 +328,9 @@ def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, roun
     keep blobs, occlusion errors and misregistered edges out of the fit. Gains only: a gain and an offset
     trade off on the near-uniform colours most overlaps hold (fitted together on the GSO objects they ran
     to 0.5 and +0.3 where the true casts were 3%). A view whose gains leave [1 / MAX_GAIN, MAX_GAIN] is
-    distrusted (kept at 1) and the others are fitted again."""
+    distrusted (kept at 1) and the others are fitted again (``max_gain``: that bound, default MAX_GAIN;
+    ``inf`` keeps every fit)."""
+    max_gain = MAX_GAIN if max_gain is None else max_gain
     m, n = weights.shape
     gains = np.ones((n, 3), np.float64)
     visible = weights >= FIT_WEIGHT
@@ -348,7 +351,7 @@ def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, roun
         gains[:] = 1.0
         for channel in range(3):
             gains[keep, channel] = _fit_channel(colours[..., channel], pairs, n, keep, ridge, rounds)
-        wild = [k for k in keep if np.any(gains[k] > MAX_GAIN) or np.any(gains[k] < 1.0 / MAX_GAIN)]
+        wild = [k for k in keep if np.any(gains[k] > max_gain) or np.any(gains[k] < 1.0 / max_gain)]
         if not wild:
             break
         fixed.update(wild)
