@@ -77,6 +77,9 @@ def test_colour_cast_separates_a_white_balance_shift_from_brightness():
     logs = np.log([1.05, 1.0, 0.95])
     assert tinted.worst == pytest.approx(np.max(np.abs(logs - logs.mean())))
     assert tinted.as_dict()["test"] == "colour_cast" and len(tinted.as_dict()["gains"]) == 2
+    # in colour units: a dark channel's share counts for as little as it shows
+    dim = ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95]]), 10, 0.0, np.array([[0.5, 0.5, 0.05]] * 2))
+    assert dim.worst_shift == pytest.approx(max(abs(logs - logs.mean()) * [0.5, 0.5, 0.05]))
 
 
 def test_colour_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):

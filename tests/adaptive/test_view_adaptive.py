@@ -175,14 +175,16 @@ def test_a_consistent_scene_skips_the_adaptive_phases(tiny_scene, tmp_path):
 
 def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, monkeypatch):
     """Residuals and silhouettes say consistent; a view whose fitted gains are 5% apart across channels
-    (above the 3% threshold) makes the scene inconsistent, and the record says why."""
+    on a mid-grey surface (a shift of 0.025, above the 0.012 threshold) makes the scene inconsistent, and
+    the record says why."""
     import numpy as np
 
     from va_plugin.adaptive import phases
     from va_plugin.adaptive.consistency import ColourCast
 
     def fake_cast(model, cameras, images, masks, resolution):
-        return ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]), 100, 0.0)
+        return ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]), 100, 0.0,
+                          np.full((4, 3), 0.5))
 
     monkeypatch.setattr(phases, "colour_cast", fake_cast)
     monkeypatch.setattr(phases, "input_silhouette_support", lambda datamanager: None)
@@ -192,8 +194,8 @@ def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, 
     assert trainer.model.field.current_phase == FUSION and not bool(trainer.model.field.skipped)
     record = json.loads((tmp_path / "run" / RESIDUALS_FILE).read_text())
     assert record["residuals_consistent"] and not record["consistent"]
-    assert record["colour_cast"]["consistent"] is False and record["colour_cast"]["threshold"] == 0.03
-    assert abs(record["colour_cast"]["worst_chroma"] - 0.0496) < 1e-3
+    assert record["colour_cast"]["consistent"] is False and record["colour_cast"]["threshold"] == 0.012
+    assert abs(record["colour_cast"]["worst_shift"] - 0.5 * 0.0496) < 1e-3
     # a threshold of 0 dB: real inputs never agree that well, so the adaptive phases run
     forced = tiny_config("va-neus", tiny_scene, tmp_path / "run2", steps=3,
                          **{"pipeline.model.field.consistent_residual_db": 0.0}).setup()

@@ -116,6 +116,7 @@ class ColourCast:
     gains: np.ndarray  # [n, 3]
     points: int  # surface points the fit used (seen by two views)
     seconds: float
+    levels: Optional[np.ndarray] = None  # [n, 3] each view's mean colour where another view sees too
 
     @property
     def log_gains(self) -> np.ndarray:
@@ -130,14 +131,25 @@ class ColourCast:
         return float(np.max(np.abs(logs - logs.mean(1, keepdims=True)))) if logs.size else 0.0
 
     @property
+    def worst_shift(self) -> float:
+        """The chromatic deviation in colour units: each channel's share of :attr:`worst` times that
+        view's mean level of the channel, so that a dark channel, whose gain the fit cannot pin down
+        (a near-black hat: log gains of 0.2), counts for as little as it shows."""
+        if not self.gains.size or self.levels is None:
+            return self.worst
+        logs = self.log_gains
+        return float(np.max(np.abs(logs - logs.mean(1, keepdims=True)) * self.levels))
+
+    @property
     def brightness(self) -> float:
         """The largest deviation of a view's mean log gain from view 0's."""
         return float(np.max(np.abs(self.log_gains.mean(1)))) if self.gains.size else 0.0
 
     def as_dict(self) -> dict:
-        return {"test": "colour_cast", "worst_chroma": round(self.worst, 5), "worst_brightness":
-                round(self.brightness, 5), "points": self.points, "seconds": round(self.seconds, 2),
-                "gains": np.round(self.gains, 4).tolist()}
+        return {"test": "colour_cast", "worst_chroma": round(self.worst, 5), "worst_shift": round(self.worst_shift, 5),
+                "worst_brightness": round(self.brightness, 5), "points": self.points,
+                "seconds": round(self.seconds, 2), "gains": np.round(self.gains, 4).tolist(),
+                "levels": None if self.levels is None else np.round(self.levels, 4).tolist()}
 
 
 @torch.no_grad()
@@ -163,5 +175,8 @@ def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: Optional[np.
     views = Views(cameras.to(torch.device("cpu")), images, masks)
     colours, weights, _ = view_samples(vertices, faces, vertices, normals, views)
     gains = harmonise(colours, weights, max_gain=max_gain)
-    shared = int(((weights > 0).sum(1) >= 2).sum())
-    return ColourCast(gains, shared, time.perf_counter() - started)
+    seen = weights > 0
+    shared = seen.sum(1) >= 2
+    w = np.where(seen & shared[:, None], weights, 0.0)
+    levels = np.einsum("mn,mnc->nc", w, colours) / np.maximum(w.sum(0), 1e-12)[:, None]
+    return ColourCast(gains, int(shared.sum()), time.perf_counter() - started, levels.astype(np.float32))

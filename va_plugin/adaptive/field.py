@@ -88,10 +88,10 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
     consistent_residual_db: float = 1.0
     """Threshold of that test: the largest per-view PSNR shortfall below the best view, in dB."""
-    consistent_colour_cast: float = 0.03
-    """Threshold of the colour-cast test of the same decision: the largest chromatic shift (log gain of a
-    channel minus the view's mean) between a view and view 0 on the shared surface
-    (:func:`va_plugin.adaptive.consistency.colour_cast`); 0 turns the test off."""
+    consistent_colour_cast: float = 0.012
+    """Threshold of the colour-cast test of the same decision: the largest chromatic shift between a view
+    and view 0 on the shared surface, in colour units (``ColourCast.worst_shift`` of
+    :func:`va_plugin.adaptive.consistency.colour_cast`); 0 turns the test off."""
     diagnostics_scale: float = 0.5
     """At the end of training, write the attention heat map and the per-view inconsistency maps to the
     run folder, rendered at this fraction of the input resolution (0: don't)."""

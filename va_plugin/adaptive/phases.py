@@ -156,7 +156,7 @@ def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttribu
     residual_ok = inputs_look_consistent(residuals, field.config.consistent_residual_db)
     support = input_silhouette_support(attributes.pipeline.datamanager)
     cast = input_colour_cast(attributes.pipeline, field.config.consistent_colour_cast)
-    colour_ok = cast is None or cast.worst <= field.config.consistent_colour_cast
+    colour_ok = cast is None or cast.worst_shift <= field.config.consistent_colour_cast
     consistent = residual_ok and (support is None or support.consistent) and colour_ok
     record = {"step": step, "threshold_db": field.config.consistent_residual_db, "consistent": consistent,
               "residuals_consistent": residual_ok, "views": residuals,
@@ -169,7 +169,7 @@ def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttribu
     key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
     spread = max(r[key] for r in residuals) - min(r[key] for r in residuals)
     details = f", silhouettes {100 * support.worst:.2f}% unsupported" if support is not None else ""
-    details += f", colour cast {100 * cast.worst:.1f}%" if cast is not None else ""
+    details += f", colour cast {cast.worst_shift:.3f}" if cast is not None else ""
     if consistent:
         field.skipped.fill_(True)
         attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB <= "
