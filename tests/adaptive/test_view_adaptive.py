@@ -170,11 +170,23 @@ def test_a_consistent_scene_skips_the_adaptive_phases(tiny_scene, tmp_path):
     assert record["consistent"] and len(record["views"]) == 4
     assert "colour_cast" in record  # None here: on the tiny scene no surface point is seen by two views
     assert trainer.lr_multipliers["fields"] == 1.0
+    # the residual test votes only on request: with it, a threshold of 0 dB (real inputs never agree that
+    # well) makes the adaptive phases run; without it, the same threshold changes nothing
+    for votes, phase in ((True, FUSION), (False, PRETRAIN)):
+        run = tmp_path / f"run-{votes}"
+        forced = tiny_config("va-neus", tiny_scene, run, steps=3,
+                             **{"pipeline.model.field.consistent_residual_db": 0.0,
+                                "pipeline.model.field.residual_test": votes,
+                                "pipeline.model.field.consistent_colour_cast": 1000.0}).setup()
+        forced.train()
+        assert forced.model.field.current_phase == phase
+        record = json.loads((run / RESIDUALS_FILE).read_text())
+        assert not record["residuals_consistent"] and record["residual_test_votes"] == votes
 
 
 
 def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, monkeypatch):
-    """Residuals and silhouettes say consistent; a view whose fitted gains are 5% apart across channels
+    """Residuals (voting) and silhouettes say consistent; a view whose fitted gains are 5% apart across channels
     on a mid-grey surface (a shift of 0.025, above the 0.012 threshold) makes the scene inconsistent, and
     the record says why."""
     import numpy as np
@@ -189,18 +201,14 @@ def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, 
     monkeypatch.setattr(phases, "colour_cast", fake_cast)
     monkeypatch.setattr(phases, "input_silhouette_support", lambda datamanager: None)
     trainer = tiny_config("va-neus", tiny_scene, tmp_path / "run", steps=3,
-                          **{"pipeline.model.field.consistent_residual_db": 1000.0}).setup()
+                          **{"pipeline.model.field.consistent_residual_db": 1000.0,
+                             "pipeline.model.field.residual_test": True}).setup()
     trainer.train()
     assert trainer.model.field.current_phase == FUSION and not bool(trainer.model.field.skipped)
     record = json.loads((tmp_path / "run" / RESIDUALS_FILE).read_text())
     assert record["residuals_consistent"] and not record["consistent"]
     assert record["colour_cast"]["consistent"] is False and record["colour_cast"]["threshold"] == 0.012
     assert abs(record["colour_cast"]["worst_shift"] - 0.5 * 0.0496) < 1e-3
-    # a threshold of 0 dB: real inputs never agree that well, so the adaptive phases run
-    forced = tiny_config("va-neus", tiny_scene, tmp_path / "run2", steps=3,
-                         **{"pipeline.model.field.consistent_residual_db": 0.0}).setup()
-    forced.train()
-    assert forced.model.field.current_phase == FUSION and not bool(forced.model.field.skipped)
 
 
 @pytest.mark.parametrize("options,match", [

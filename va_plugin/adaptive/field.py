@@ -84,10 +84,15 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     the attention and the consistency loss see only those samples, so canonical="mean" (which fuses
     every sample) is refused for training."""
     skip_consistent_scenes: bool = True
-    """After pre-training, measure how well the shared field explains each input; when every view is
-    explained to within ``consistent_residual_db``, stay in phase 1 (the adaptive phases are skipped)."""
+    """After pre-training, test whether the inputs agree (silhouette support and colour cast; see
+    ``residual_test``); when they do, stay in phase 1 (the adaptive phases are skipped)."""
+    residual_test: bool = False
+    """Let the per-view residual test vote too: every view explained by the shared field to within
+    ``consistent_residual_db``. Off since 2026-11-25: at phase 1's end of the 2000-step default it called
+    8 of 10 clean GSO objects inconsistent (spreads 0.4-4.1 dB) and a level-2 one consistent; it is
+    still measured and recorded in view_residuals.json."""
     consistent_residual_db: float = 1.0
-    """Threshold of that test: the largest per-view PSNR shortfall below the best view, in dB."""
+    """Threshold of the residual test: the largest per-view PSNR shortfall below the best view, in dB."""
     consistent_colour_cast: float = 0.012
     """Threshold of the colour-cast test of the same decision: the largest chromatic shift between a view
     and view 0 on the shared surface, in colour units (``ColourCast.worst_shift`` of

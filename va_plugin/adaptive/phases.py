@@ -149,17 +149,21 @@ def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
 
 def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttributes, step: int) -> bool:
     """Measure the per-view residuals, the silhouette support and the colour cast once, record them, and
-    say whether to skip the adaptive phases: only when all three say the inputs agree (the residual test
-    alone called real generator outputs consistent: a field can fit their disagreement away; the
-    silhouettes and the colours of a view-independent field cannot be)."""
+    say whether to skip the adaptive phases: only when the silhouettes and the colours (and, with
+    ``residual_test``, the residuals) say the inputs agree. The residual test called real generator
+    outputs consistent (a field can fit their disagreement away) and most clean GSO objects
+    inconsistent (a 4-view field at phase 1's end explains its views unevenly), so it only votes on
+    request."""
     residuals = view_residuals(attributes.pipeline)
     residual_ok = inputs_look_consistent(residuals, field.config.consistent_residual_db)
     support = input_silhouette_support(attributes.pipeline.datamanager)
     cast = input_colour_cast(attributes.pipeline, field.config.consistent_colour_cast)
     colour_ok = cast is None or cast.worst_shift <= field.config.consistent_colour_cast
-    consistent = residual_ok and (support is None or support.consistent) and colour_ok
+    consistent = (residual_ok or not field.config.residual_test) and (support is None or support.consistent) \
+        and colour_ok
     record = {"step": step, "threshold_db": field.config.consistent_residual_db, "consistent": consistent,
-              "residuals_consistent": residual_ok, "views": residuals,
+              "residuals_consistent": residual_ok, "residual_test_votes": field.config.residual_test,
+              "views": residuals,
               "silhouette_support": support.as_dict() if support is not None else None,
               "colour_cast": None if cast is None else {**cast.as_dict(), "consistent": colour_ok,
                                                         "threshold": field.config.consistent_colour_cast}}
