@@ -123,22 +123,26 @@ class ColourCast:
         return np.log(np.clip(self.gains, 1e-6, None))
 
     @property
-    def worst(self) -> float:
-        """The largest chromatic deviation: per view, the log gain of a channel minus the view's mean log
-        gain (a white-balance shift; a common brightness factor is left out, since the same surface seen
-        from another side is lit differently even in consistent renders: 3-4% on the clean GSO alarm)."""
+    def chroma(self) -> np.ndarray:
+        """``[n, 3]``: per view, the log gain of each channel minus the view's mean log gain (a
+        white-balance shift; a common brightness factor is left out, since the same surface seen from
+        another side is lit differently even in consistent renders: 3-4% on the clean GSO alarm)."""
         logs = self.log_gains
-        return float(np.max(np.abs(logs - logs.mean(1, keepdims=True)))) if logs.size else 0.0
+        return np.abs(logs - logs.mean(1, keepdims=True))
+
+    @property
+    def worst(self) -> float:
+        """The largest chromatic deviation (:attr:`chroma`)."""
+        return float(self.chroma.max()) if self.gains.size else 0.0
 
     @property
     def worst_shift(self) -> float:
-        """The chromatic deviation in colour units: each channel's share of :attr:`worst` times that
-        view's mean level of the channel, so that a dark channel, whose gain the fit cannot pin down
-        (a near-black hat: log gains of 0.2), counts for as little as it shows."""
+        """The chromatic deviation in colour units: :attr:`chroma` times the view's mean level of the
+        channel, so that a dark channel, whose gain the fit cannot pin down (a near-black hat: log gains
+        of 0.2), counts for as little as it shows."""
         if not self.gains.size or self.levels is None:
             return self.worst
-        logs = self.log_gains
-        return float(np.max(np.abs(logs - logs.mean(1, keepdims=True)) * self.levels))
+        return float(np.max(self.chroma * self.levels))
 
     @property
     def brightness(self) -> float:

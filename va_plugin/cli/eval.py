@@ -30,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
     parser.add_argument("--fusion", choices=("robust", "mean"), default="robust", help="per-texel fusion of the views")
     parser.add_argument("--no-harmonise", action="store_true",
-                        help="robust fusion: skip levelling each view's colour gain and offset against the others")
+                        help="robust fusion: skip levelling each view's colour gains against the others")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
     parser.add_argument("--no-progress", action="store_true")
     return parser

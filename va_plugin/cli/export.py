@@ -25,7 +25,7 @@ def build_parser() -> argparse.ArgumentParser:
     mesh.add_argument("--fusion", choices=("robust", "mean"), default="robust",
                       help="how disagreeing views are fused per texel: robust consensus or weighted mean")
     mesh.add_argument("--no-harmonise", action="store_true",
-                      help="robust fusion: skip levelling each view's colour gain and offset against the others")
+                      help="robust fusion: skip levelling each view's colour gains against the others")
     mesh.add_argument("--use-inconsistency", action="store_true",
                       help="view-adaptive runs: weight each view down where its inconsistency map is high")
     render = sub.add_parser("render", help="held-out views and a turntable (PNG frames and MP4)")

@@ -317,7 +317,7 @@ def view_noise(residual: np.ndarray, visible: np.ndarray) -> np.ndarray:
 
 
 def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS,
-              max_gain: float = None):
+              max_gain: Optional[float] = None):
     """Per-view colour gains that make the views agree where they overlap: ``gains [n, 3]`` with view
     ``reference`` fixed at 1 (the generator's conditioning view by this project's convention, as for the
     per-view camera and appearance corrections).
