@@ -22,7 +22,8 @@ from pathlib import Path
 import torch
 
 from va_plugin.adaptive.consistency import colour_cast
-from va_plugin.adaptive.phases import COLOUR_CAST_GRID, input_silhouette_support, view_residuals
+from va_plugin.adaptive.phases import (COLOUR_CAST_GRID, input_silhouette_support, residual_spread_db,
+                                       view_residuals)
 from va_plugin.cli.common import friendly_errors
 from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
@@ -38,9 +39,7 @@ def measure(pipeline, step: int, resolution: int, with_residuals: bool = False) 
     record = {"step": step, **cast.as_dict(),
               "silhouette_unsupported": None if support is None else round(support.worst, 5)}
     if with_residuals:
-        residuals = view_residuals(pipeline)
-        key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
-        record["residual_spread_db"] = round(max(r[key] for r in residuals) - min(r[key] for r in residuals), 3)
+        record["residual_spread_db"] = round(residual_spread_db(view_residuals(pipeline)), 3)
     return record
 
 

@@ -31,6 +31,7 @@ import time
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
+from va_plugin.adaptive.phases import residual_spread_db
 from va_plugin.engine.metrics_log import read_records
 
 REPO = Path(__file__).resolve().parents[1]
@@ -249,8 +250,7 @@ def main(argv=None) -> int:
             row["inconsistency"] = inc
         if (run_dir / "view_residuals.json").is_file():  # the consistent-scene test's measurement
             views = json.loads((run_dir / "view_residuals.json").read_text())["views"]
-            key = "psnr_foreground" if all("psnr_foreground" in v for v in views) else "psnr"
-            row["residual_spread_db"] = round(max(v[key] for v in views) - min(v[key] for v in views), 2)
+            row["residual_spread_db"] = round(residual_spread_db(views), 2)
     write_tables(rows, args.out)
     figure = summary_figure(inputs, methods, args.out)
     if figure is not None:

@@ -93,15 +93,21 @@ def view_residuals(pipeline, max_pixels: int = 4096, total_pixels: int = 16384,
     return results
 
 
+def residual_spread_db(residuals: List[Dict[str, float]]) -> float:
+    """How far the worst-explained view falls below the best one, in dB: the spread of the per-view
+    foreground PSNRs of :func:`view_residuals` (of the whole-image PSNRs when a view has no foreground)."""
+    key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
+    values = [r[key] for r in residuals]
+    return max(values) - min(values)
+
+
 def inputs_look_consistent(residuals: List[Dict[str, float]], threshold_db: float) -> bool:
     """True when no view falls more than ``threshold_db`` below the best-explained view.
 
     Under consistent inputs the shared field explains every view about equally well; a view that
     disagrees with the others is explained worse than the rest.
     """
-    key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
-    values = [r[key] for r in residuals]
-    return max(values) - min(values) <= threshold_db
+    return residual_spread_db(residuals) <= threshold_db
 
 
 def phase_callback(field: "ViewAdaptiveField") -> TrainingCallback:
@@ -170,8 +176,7 @@ def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttribu
     run_dir = Path(attributes.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / RESIDUALS_FILE).write_text(json.dumps(record, indent=2))
-    key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
-    spread = max(r[key] for r in residuals) - min(r[key] for r in residuals)
+    spread = residual_spread_db(residuals)
     details = f", silhouettes {100 * support.worst:.2f}% unsupported" if support is not None else ""
     details += f", colour cast {cast.worst_shift:.3f}" if cast is not None else ""
     if consistent:
