@@ -83,17 +83,15 @@ def _convert(text: str, current: Any, name: str) -> Any:
         if lowered in ("0", "false", "no", "off"):
             return False
         raise ConfigError(f"option {name} takes true or false, got {text!r}")
-    try:
-        if isinstance(current, int):
-            return int(text)
-        if isinstance(current, float):
-            value = float(text)
-            if not math.isfinite(value):
-                raise ConfigError(f"option {name} takes a finite number, got {text!r}")
-            return value
-    except ValueError:
-        kind = "an integer" if isinstance(current, int) else "a number"
-        raise ConfigError(f"option {name} takes {kind}, got {text!r}") from None
+    if isinstance(current, (int, float)):
+        try:
+            value = int(text) if isinstance(current, int) else float(text)
+        except ValueError:
+            kind = "an integer" if isinstance(current, int) else "a number"
+            raise ConfigError(f"option {name} takes {kind}, got {text!r}") from None
+        if not math.isfinite(value):
+            raise ConfigError(f"option {name} takes a finite number, got {text!r}")
+        return value
     if current is None:
         if lowered in ("none", "null"):
             return None
@@ -112,6 +110,39 @@ def _convert(text: str, current: Any, name: str) -> Any:
             parsed = [parsed]
         return type(current)(parsed)
     return text
+
+
+# Ranges of numeric options by their last name, checked on every override, so that a value that would
+# train backwards, divide by zero or build an empty network is refused in one line before any work.
+_POSITIVE = frozenset({
+    "attention_dim", "attention_heads", "base_resolution", "bound", "branch_layers", "branch_width",
+    "checkpoint_every", "color_width", "density_threshold", "eval_chunk", "features_per_level",
+    "finite_difference_cells", "hidden_width", "image_scale", "init_radius", "keep_checkpoints",
+    "log_every", "max_resolution", "max_skips_in_a_row", "max_steps", "n_levels", "n_samples",
+    "rays_per_batch", "resolution", "scene_radius", "sdf_width", "skip_margin", "smoothness_points",
+    "smoothness_radius", "snapshot_every", "softplus_beta", "update_every"})
+_NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
+    "color_layers", "consistent_colour_cast", "consistent_residual_db", "diagnostics_scale", "eval_every",
+    "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",
+    "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "min_sample_weight", "n_importance",
+    "num_threads", "sdf_layers", "shared_lr_scale", "spike_factor", "spike_floor", "start_levels",
+    "threshold", "up_sample_steps", "warmup_steps", "weight_decay"})
+_UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance"})
+
+
+def check_range(name: str, value: Any, path: str) -> None:
+    """Refuse a numeric option outside its range (``*_weight`` >= 0, ``*_fraction`` in [0, 1], counts
+    and sizes positive, ...); other names are not checked here."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)):
+        return
+    if name in _POSITIVE and not value > 0:
+        raise ConfigError(f"option {path} must be positive, got {value}")
+    if (name in _NON_NEGATIVE or name.endswith("_weight")) and not value >= 0:
+        raise ConfigError(f"option {path} must be >= 0, got {value}")
+    if (name in _UNIT_INTERVAL or name.endswith("_fraction")) and not 0 <= value <= 1:
+        raise ConfigError(f"option {path} must be in [0, 1], got {value}")
+    if name == "direction_frequencies" and value < -1:
+        raise ConfigError(f"option {path} must be -1 (no direction), 0 (raw direction) or a number of bands, got {value}")
 
 
 def apply_override(config: Any, assignment: str) -> None:
@@ -133,7 +164,9 @@ def apply_override(config: Any, assignment: str) -> None:
     if not is_dataclass(target) or last not in {f.name for f in fields(target)}:
         known = ", ".join(f.name for f in fields(target)) if is_dataclass(target) else ""
         raise ConfigError(f"unknown option {path!r}; options here are: {known}")
-    setattr(target, last, _convert(text, getattr(target, last), path))
+    value = _convert(text, getattr(target, last), path)
+    check_range(last, value, path)
+    setattr(target, last, value)
 
 
 def replace(config: Any, **changes: Any) -> Any:

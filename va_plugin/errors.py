@@ -14,8 +14,10 @@ class DataError(VAError):
     """A data folder, image or camera file that cannot be used."""
 
 
-class ConfigError(VAError):
-    """An unknown method, preset, option or an inconsistent combination of options."""
+class ConfigError(VAError, ValueError):
+    """An unknown method, preset, option, an option's value out of its range, or an inconsistent
+    combination of options (also a ``ValueError``, so code that builds components directly can catch
+    it as one)."""
 
 
 class CheckpointError(VAError):

@@ -120,6 +120,22 @@ def test_va_train_refuses_a_broken_scene(breakage, message, tiny_scene, tmp_path
     (["neus", "--set", "pipeline.datamanager.rays_per_batch=0"], "rays_per_batch must be positive"),
     (["neus", "--set", "health.lr_backoff=2"], "lr_backoff"),
     (["neus", "--steps", "0"], "max_steps must be at least 1"),
+    # values out of range: refused before any work, never a traceback or a run that trains backwards
+    (["neus", "--set", "optimizers.fields.lr=-1"], "optimizers.fields.lr must be >= 0"),
+    (["neus", "--set", "optimizers.variance.eps=0"], "eps must be a finite number > 0"),
+    (["neus", "--set", "scheduler.final_fraction=2"], "must be in [0, 1]"),
+    (["neus", "--set", "pipeline.model.eikonal_weight=-1"], "eikonal_weight must be >= 0"),
+    (["neus", "--set", "pipeline.model.cos_anneal_fraction=3"], "cos_anneal_fraction must be in [0, 1]"),
+    (["neus", "--set", "pipeline.model.n_samples=0"], "n_samples must be positive"),
+    (["neus", "--set", "pipeline.model.up_sample_steps=-1"], "up_sample_steps must be >= 0"),
+    (["neus", "--set", "pipeline.model.field.sdf_width=0"], "sdf_width must be positive"),
+    (["neus", "--set", "pipeline.model.field.max_resolution=4"], "base_resolution <= max_resolution"),
+    (["neus", "--set", "pipeline.model.field.log2_hashmap_size=40"], "log2_hashmap_size must be in [1, 32]"),
+    (["neus", "--set", "pipeline.model.field.init_radius=5"], "init_radius must be in (0, bound"),
+    (["neus", "--set", "pipeline.model.field.direction_frequencies=-2"], "direction_frequencies must be -1"),
+    (["neus", "--set", "pipeline.datamanager.dataparser.image_scale=0"], "image_scale must be positive"),
+    (["ngp", "--set", "pipeline.model.occupancy_grid.decay=1.5"], "decay must be in [0, 1]"),
+    (["va-neus", "--set", "pipeline.model.field.branch_layers=0"], "branch_layers must be positive"),
 ])
 def test_va_train_refuses_contradictory_options(argv, message, tiny_scene, tmp_path, capsys):
     run = tmp_path / "run"

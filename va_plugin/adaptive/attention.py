@@ -8,6 +8,8 @@ from typing import Tuple
 import torch
 from torch import nn
 
+from va_plugin.errors import ConfigError
+
 LOGIT_BOUND = 50.0
 """Attention logits are clamped to [-50, 50]: softmax is already exact to fp32 there, and an
 overflowing dot product can no longer produce inf - inf = NaN."""
@@ -29,7 +31,7 @@ class ViewAttention(nn.Module):
     def __init__(self, feature_dim: int, attention_dim: int = 128, n_heads: int = 4) -> None:
         super().__init__()
         if attention_dim % n_heads != 0:
-            raise ValueError(f"attention_dim {attention_dim} is not divisible by n_heads {n_heads}")
+            raise ConfigError(f"attention_dim ({attention_dim}) must be a multiple of attention_heads ({n_heads})")
         self.n_heads, self.head_dim = n_heads, attention_dim // n_heads
         self.qkv = nn.Linear(feature_dim, 3 * attention_dim)
         self.out = nn.Linear(attention_dim, feature_dim)

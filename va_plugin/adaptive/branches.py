@@ -12,6 +12,7 @@ import math
 import torch
 from torch import nn
 
+from va_plugin.errors import ConfigError
 from va_plugin.utils.stages import timed
 
 
@@ -28,7 +29,7 @@ class ViewBranches(nn.Module):
     def __init__(self, n_views: int, feature_dim: int, width: int = 128, n_layers: int = 3) -> None:
         super().__init__()
         if n_views < 1 or n_layers < 1:
-            raise ValueError("ViewBranches needs at least one view and one layer")
+            raise ConfigError(f"the view branches need at least one view and branch_layers >= 1, got {n_views} views and {n_layers} layers")
         self.n_views, self.feature_dim = n_views, feature_dim
         dims = [feature_dim] + [width] * (n_layers - 1) + [feature_dim]
         self.weights = nn.ParameterList()

@@ -140,6 +140,9 @@ class Trainer:
         self.config = config
         if config.max_steps < 1:
             raise ConfigError(f"max_steps must be at least 1, got {config.max_steps}")
+        for group, optimizer_config in config.optimizers.items():
+            optimizer_config.validate(group)
+        config.scheduler.validate()
         if config.num_threads > 0:
             torch.set_num_threads(config.num_threads)
         self.device = pick_device(config.device)

@@ -74,6 +74,9 @@ class HashSDFField(Field):
         if config.sdf_gradient not in SDF_GRADIENT_KINDS:
             raise ConfigError(f"field.sdf_gradient must be one of {', '.join(SDF_GRADIENT_KINDS)}, "
                               f"got {config.sdf_gradient!r}")
+        if not 0 < config.init_radius < config.bound:
+            raise ConfigError(f"field.init_radius must be in (0, bound = {config.bound}): the starting sphere has to "
+                              f"fit inside the hash grid, got {config.init_radius}")
         self.config = config
         self.encoding = config.make_encoding()
         self.sdf_net = MLP(3 + self.encoding.output_dim, config.sdf_width, config.sdf_layers,

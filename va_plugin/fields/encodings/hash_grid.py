@@ -34,6 +34,8 @@ import torch
 import torch.nn.functional as F
 from torch import nn
 
+from va_plugin.errors import ConfigError
+
 # Per-axis multipliers of the spatial hash (Teschner et al. 2003, as used by InstantNGP).
 HASH_PRIMES = (1, 2654435761, 805459861)
 
@@ -303,13 +305,13 @@ class HashGridEncoding(nn.Module):
     ) -> None:
         super().__init__()
         if n_levels < 1 or n_features_per_level < 1:
-            raise ValueError("n_levels and n_features_per_level must be at least 1")
+            raise ConfigError(f"n_levels and features_per_level must be at least 1, got {n_levels} and {n_features_per_level}")
         if not 1 <= log2_hashmap_size <= 32:
-            raise ValueError(f"log2_hashmap_size must be in [1, 32], got {log2_hashmap_size}")
+            raise ConfigError(f"log2_hashmap_size must be in [1, 32], got {log2_hashmap_size}")
         if not 1 <= base_resolution <= max_resolution:
-            raise ValueError("need 1 <= base_resolution <= max_resolution")
+            raise ConfigError(f"the hash grid needs 1 <= base_resolution <= max_resolution, got {base_resolution} and {max_resolution}")
         if bound <= 0:
-            raise ValueError(f"bound must be positive, got {bound}")
+            raise ConfigError(f"bound must be positive, got {bound}")
         self.n_levels = n_levels
         self.n_features_per_level = n_features_per_level
         self.hashmap_size = 2**log2_hashmap_size
