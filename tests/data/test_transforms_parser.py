@@ -1,5 +1,6 @@
 import json
 import math
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -136,3 +137,36 @@ def test_datamanager_refuses_empty_masks(tmp_path):
         write_image(root / f"r_{i}.png", np.zeros((6, 8, 4), np.float32))
     with pytest.raises(DataError, match="masks are empty"):
         DataManager(DataManagerConfig(dataparser=TransformsDataParserConfig(data=root)))
+
+
+def test_border_foreground_counts_each_edge_pixel_once():
+    from va_plugin.data.bounds import border_foreground
+    masks = torch.zeros(2, 4, 5, 1)
+    masks[0, 0, :, 0] = 1.0        # the whole top row: 5 of the 14 border pixels
+    masks[1, 1:3, 1:4, 0] = 1.0    # inside only
+    masks[1, 3, 4, 0] = 1.0        # one corner pixel
+    assert border_foreground(masks) == pytest.approx([5 / 14, 1 / 14])
+
+
+def test_an_object_cut_off_by_the_frame_is_warned_about(tiny_scene):
+    from va_plugin.data.bounds import warn_object_cut_by_frame
+    outputs = TransformsDataParserConfig(data=tiny_scene).setup().get_outputs("train")
+    with warnings.catch_warnings():
+        warnings.simplefilter("error")  # the tiny scene keeps a margin: no warning
+        assert max(warn_object_cut_by_frame(outputs)) == 0.0
+    outputs.masks[1, -1, :, 0] = 1.0  # view 1's bottom row is now object
+    with pytest.warns(UserWarning, match=r"cuts the object off in training view\(s\) \[1\]"):
+        warn_object_cut_by_frame(outputs)
+
+
+def test_gso_cream_is_the_dev_object_the_frame_cuts_off():
+    """On the SyncDreamer rig, cream (a box) is cut off in all 4 input views; alarm is not."""
+    from va_plugin.data.bounds import border_foreground
+    from va_plugin.data.scenes import gso
+    root = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "gso"
+    if not (root / "alignment.json").is_file():
+        pytest.skip(f"GSO data absent: {root}")
+    for name, cut in (("cream", True), ("alarm", False)):
+        alphas = torch.from_numpy(gso.load_renders(root, name, 256)[[0, 4, 8, 12], ..., 3:])
+        shares = border_foreground(alphas)
+        assert (min(shares) > 0.1) if cut else (max(shares) == 0.0), (name, shares)

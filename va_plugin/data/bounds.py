@@ -1,9 +1,12 @@
 """Does the object fit in the scene's bounding sphere? Every model samples only inside it, so an
-object that sticks out would be cut off without a word; we refuse such inputs instead."""
+object that sticks out would be cut off without a word; we refuse such inputs instead. An object that
+the image frame cuts off is allowed, with a warning: what lies outside every frame is seen by no view."""
 
 from __future__ import annotations
 
 import math
+import warnings
+from typing import List
 
 import torch
 
@@ -13,6 +16,8 @@ from va_plugin.rays import near_far_from_sphere
 
 MAX_OUTSIDE_FRACTION = 0.01
 """Share of a view's foreground pixels whose rays may miss the sphere (mask edges, rounding)."""
+MAX_BORDER_FRACTION = 0.01
+"""Share of a view's border pixels that may be foreground before the object counts as cut off."""
 MAX_CHECKED_PIXELS = 16384
 """Foreground pixels checked per view (an even subsample beyond that)."""
 
@@ -41,3 +46,27 @@ def check_object_in_bound(outputs: DataparserOutputs) -> None:
                             f"{outside:.0%} of the foreground of training view {view} lies outside it; "
                             "use a larger scene radius (scene_radius in transforms.json, or --set "
                             "pipeline.datamanager.dataparser.scene_radius=R) or check the camera poses")
+
+
+def border_foreground(masks: torch.Tensor) -> List[float]:
+    """Per view, the share of the image's outermost pixels (all four edges) that are foreground."""
+    fg = masks[..., 0] > 0.5  # [n, H, W]
+    edges = torch.cat([fg[:, 0, :], fg[:, -1, :], fg[:, 1:-1, 0], fg[:, 1:-1, -1]], dim=1)
+    return edges.float().mean(dim=1).tolist()
+
+
+def warn_object_cut_by_frame(outputs: DataparserOutputs) -> List[float]:
+    """Warn when the frame cuts the object off in some training view (foreground on more than 1% of
+    the image border): the parts outside every frame get no supervision, so the surface there is a
+    guess (on the GSO box `cream`, cut off in all four views, it flares out into a skirt) and a mesh
+    metric that counts them is worse for it. Returns the per-view shares (empty without masks)."""
+    if outputs.masks is None:
+        return []
+    shares = border_foreground(outputs.masks)
+    cut = [view for view, share in enumerate(shares) if share > MAX_BORDER_FRACTION]
+    if cut:
+        warnings.warn(f"the image frame cuts the object off in training view(s) {cut} (up to "
+                      f"{max(shares):.0%} of a view's border is foreground): what lies outside every frame is "
+                      "seen by no view, so the surface there is a guess; inputs with a margin around the object "
+                      "avoid this")
+    return shares
