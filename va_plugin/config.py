@@ -142,7 +142,8 @@ def check_range(name: str, value: Any, path: str) -> None:
     if (name in _UNIT_INTERVAL or name.endswith("_fraction")) and not 0 <= value <= 1:
         raise ConfigError(f"option {path} must be in [0, 1], got {value}")
     if name == "direction_frequencies" and value < -1:
-        raise ConfigError(f"option {path} must be -1 (no direction), 0 (raw direction) or a number of bands, got {value}")
+        raise ConfigError(f"option {path} must be -1 (no direction), 0 (raw direction) or a number of bands, "
+                          f"got {value}")
 
 
 def apply_override(config: Any, assignment: str) -> None:

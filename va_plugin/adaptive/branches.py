@@ -29,7 +29,8 @@ class ViewBranches(nn.Module):
     def __init__(self, n_views: int, feature_dim: int, width: int = 128, n_layers: int = 3) -> None:
         super().__init__()
         if n_views < 1 or n_layers < 1:
-            raise ConfigError(f"the view branches need at least one view and branch_layers >= 1, got {n_views} views and {n_layers} layers")
+            raise ConfigError(f"the view branches need at least one view and branch_layers >= 1, got {n_views} views "
+                              f"and {n_layers} layers")
         self.n_views, self.feature_dim = n_views, feature_dim
         dims = [feature_dim] + [width] * (n_layers - 1) + [feature_dim]
         self.weights = nn.ParameterList()

@@ -305,11 +305,13 @@ class HashGridEncoding(nn.Module):
     ) -> None:
         super().__init__()
         if n_levels < 1 or n_features_per_level < 1:
-            raise ConfigError(f"n_levels and features_per_level must be at least 1, got {n_levels} and {n_features_per_level}")
+            raise ConfigError(f"n_levels and features_per_level must be at least 1, got {n_levels} and "
+                              f"{n_features_per_level}")
         if not 1 <= log2_hashmap_size <= 32:
             raise ConfigError(f"log2_hashmap_size must be in [1, 32], got {log2_hashmap_size}")
         if not 1 <= base_resolution <= max_resolution:
-            raise ConfigError(f"the hash grid needs 1 <= base_resolution <= max_resolution, got {base_resolution} and {max_resolution}")
+            raise ConfigError(f"the hash grid needs 1 <= base_resolution <= max_resolution, got {base_resolution} "
+                              f"and {max_resolution}")
         if bound <= 0:
             raise ConfigError(f"bound must be positive, got {bound}")
         self.n_levels = n_levels
