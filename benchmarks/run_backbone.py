@@ -19,15 +19,17 @@ default before the hash-grid field). ``--budgets 1,2,4`` checks that more comput
 
 from __future__ import annotations
 
+import itertools
 import sys
 from pathlib import Path
-from typing import Any, Dict, List, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 from va_plugin.bench.cli import Experiment, axis_values, comma_list, main as bench_main
 from va_plugin.bench.presets import BACKBONES
 from va_plugin.bench.report import (fmt, group_rows, markdown_table, plot_time_curves, report_sections,
                                     summary_table, write_outputs)
 from va_plugin.bench.rows import RowSpec, scene_of
+from va_plugin.data.scenes.inconsistency import parse_kinds
 from va_plugin.errors import ConfigError
 from va_plugin.registry import get_method
 
@@ -42,6 +44,11 @@ def add_arguments(parser) -> None:
                              "hash-grid NeuS against the positional-encoding NeuS that was the default before "
                              "it); each @KEY=VALUE is a --set override of that variant alone")
     parser.add_argument("--levels", default=None, help="comma-separated inconsistency levels (default 0,2)")
+    parser.add_argument("--kinds", default=None,
+                        help="semicolon-separated sets of inconsistency kinds, each a comma-separated subset of "
+                             "geometric,appearance,pose (default: all three together); e.g. "
+                             "'appearance;geometric,pose' splits a level's error into its colour and its "
+                             "geometric part. Scenes with fewer kinds are named NAME+kind+kind")
     parser.add_argument("--budgets", default="1",
                         help="comma-separated multiples of each variant's default step budget (e.g. 1,2,4)")
 
@@ -67,25 +74,35 @@ def parse_variants(text: str) -> List[Tuple[str, str, Tuple[str, ...]]]:
     return variants
 
 
+def parse_kind_sets(text: Optional[str]) -> List[Optional[Tuple[str, ...]]]:
+    """``--kinds``: ``None`` (every kind together) or one tuple of kinds per ``;``-separated set."""
+    if text is None or not text.strip():
+        return [None]
+    sets = [parse_kinds(part) for part in text.split(";") if part.strip()]
+    if not sets:
+        raise ConfigError(f"--kinds names no set of kinds: {text!r}")
+    return sets
+
+
 def plan(preset, args, sources: List[str]) -> List[RowSpec]:
     variants = parse_variants(args.variants)
     budgets = [float(b) for b in comma_list(args.budgets, float)]
     if not budgets or min(budgets) <= 0:
         raise ConfigError(f"--budgets takes positive multiples, got {args.budgets!r}")
+    kind_sets = parse_kind_sets(args.kinds)
     rows = []
-    for level in axis_values(args.levels, (0, 2)):
-        for source in sources:
-            scene = scene_of(source, preset, args.seed, level=level)
-            for method, method_preset, overrides in variants:
-                backbone, adaptive = METHOD_OF[method]
-                default_steps = preset.steps.get(backbone) or get_method(method).make_config(
-                    method_preset or None).max_steps
-                for budget in budgets:
-                    label = method + (f":{method_preset}" if method_preset else "") + \
-                        "".join(f"@{o}" for o in overrides) + ("" if budget == 1 else f" x{budget:g}")
-                    rows.append(RowSpec("backbone", scene, backbone, bool(adaptive), variant=label,
-                                        overrides=overrides, method_preset=method_preset or None,
-                                        steps=max(1, int(round(default_steps * budget)))))
+    for level, kinds, source in itertools.product(axis_values(args.levels, (0, 2)), kind_sets, sources):
+        scene = scene_of(source, preset, args.seed, level=level, kinds=kinds)
+        for method, method_preset, overrides in variants:
+            backbone, adaptive = METHOD_OF[method]
+            default_steps = preset.steps.get(backbone) or get_method(method).make_config(
+                method_preset or None).max_steps
+            for budget in budgets:
+                label = method + (f":{method_preset}" if method_preset else "") + \
+                    "".join(f"@{o}" for o in overrides) + ("" if budget == 1 else f" x{budget:g}")
+                rows.append(RowSpec("backbone", scene, backbone, bool(adaptive), variant=label,
+                                    overrides=overrides, method_preset=method_preset or None,
+                                    steps=max(1, int(round(default_steps * budget)))))
     return rows
 
 

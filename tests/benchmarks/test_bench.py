@@ -100,6 +100,9 @@ def test_scene_names(tmp_path):
     with pytest.raises(ConfigError):
         expand_scene_names(["teapot-of-doom"], None)
     assert SceneSpec("gso:alarm", level=3).folder_name == "gso-alarm-l3-v4-r256-s42"
+    fewer = SceneSpec("gso:alarm", level=3, kinds=("geometric", "pose"))
+    assert fewer.name == "gso-alarm+geometric+pose" and fewer.folder_name == "gso-alarm+geometric+pose-l3-v4-r256-s42"
+    assert SceneSpec("procedural:mug", kinds=()).name == "mug+none"
 
 
 def test_input_error_is_the_mean_per_view_rmse(tmp_path):

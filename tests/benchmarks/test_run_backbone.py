@@ -55,6 +55,7 @@ def test_report_has_level_tables_and_budget_check(smoke_out):
     (["--variants", "nope"], "unknown method"),
     (["--variants", "neus:nope"], "has no preset"),
     (["--budgets", "0"], "positive"),
+    (["--kinds", "appearance;colour"], "unknown inconsistency kind"),
     (["--variants", "neus@smoothness_weight"], "KEY=VALUE"),
 ])
 def test_bad_flags(backbone, tmp_path, flags, message, capsys):
@@ -66,3 +67,17 @@ def test_variant_overrides_reach_their_row_only(backbone):
     variants = backbone.parse_variants("neus,neus:fast@pipeline.model.smoothness_weight=0.1@max_steps=7")
     assert variants == [("neus", "", ()),
                         ("neus", "fast", ("pipeline.model.smoothness_weight=0.1", "max_steps=7"))]
+
+
+def test_kind_sets_become_scenes_of_their_own(backbone, tmp_path):
+    """``--kinds 'appearance;geometric,pose'``: every object once per set, each scene built with just
+    those kinds (its scene.json says which), and the rows named apart."""
+    out = tmp_path / "kinds"
+    argv = ["--preset", "smoke", "--out", str(out), "--device", "cpu", "--variants", "neus", "--levels", "2",
+            "--kinds", "appearance;pose,geometric"]
+    assert backbone.main(argv) == 0
+    scenes = sorted(r["scene"] for r in csv.DictReader((out / "backbone.csv").open()))
+    assert len(scenes) == 2 and scenes[0].endswith("+appearance") and scenes[1].endswith("+geometric+pose")
+    built = {p.parent.name: json.loads(p.read_text())["inconsistency"]["kinds"]
+             for p in (out / "scenes").glob("*/scene.json")}
+    assert sorted(map(tuple, built.values())) == [("appearance",), ("geometric", "pose")]

@@ -20,7 +20,7 @@ import re
 import shutil
 import time
 import warnings
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
 from typing import Any, Dict, List, Optional, Tuple
 
@@ -203,7 +203,9 @@ def run_steps(row: RowSpec, preset: BenchPreset) -> int:
 
 
 def scene_of(source: str, preset: BenchPreset, seed: int, level: Optional[int] = None,
-             views: Optional[int] = None) -> SceneSpec:
-    """The scene of a source under a preset (its level, views and resolution unless given)."""
-    return SceneSpec(source, preset.level if level is None else level, preset.views if views is None else views,
+             views: Optional[int] = None, kinds: Optional[Tuple[str, ...]] = None) -> SceneSpec:
+    """The scene of a source under a preset (its level, views and resolution unless given; every
+    inconsistency kind unless ``kinds`` names fewer)."""
+    spec = SceneSpec(source, preset.level if level is None else level, preset.views if views is None else views,
                      preset.resolution, seed, preset.scene_mesh_resolution)
+    return spec if kinds is None else replace(spec, kinds=tuple(kinds))

@@ -15,8 +15,9 @@ import re
 import shutil
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, List, Optional, Sequence
+from typing import Iterable, List, Optional, Sequence, Tuple
 
+from va_plugin.data.scenes.inconsistency import KINDS
 from va_plugin.errors import ConfigError, DataError
 
 SCENE_FILE = "scene.json"
@@ -32,20 +33,33 @@ class SceneSpec:
     resolution: int = 256
     seed: int = 42
     mesh_resolution: int = 160
+    kinds: Tuple[str, ...] = KINDS
+    """The inconsistency kinds injected (canonical order); all of them unless a benchmark asks for fewer."""
+
+    @property
+    def kinds_suffix(self) -> str:
+        """Empty for all kinds, else ``+kind+kind`` (``+none`` for no kind): names and folders of scenes
+        with fewer kinds differ from the usual ones, so rows and caches never mix."""
+        if tuple(self.kinds) == KINDS:
+            return ""
+        return "+" + "+".join(self.kinds or ("none",))
 
     @property
     def name(self) -> str:
-        """Short name for tables: the object's name (``gso-`` in front for GSO objects)."""
+        """Short name for tables: the object's name (``gso-`` in front for GSO objects), plus the kinds
+        when not all of them are injected."""
         kind, _, rest = self.source.partition(":")
         if kind == "procedural":
-            return rest
-        if kind == "mesh":
-            return Path(rest).stem
-        return f"{kind}-{rest}"
+            base = rest
+        elif kind == "mesh":
+            base = Path(rest).stem
+        else:
+            base = f"{kind}-{rest}"
+        return base + self.kinds_suffix
 
     @property
     def folder_name(self) -> str:
-        slug = re.sub(r"[^A-Za-z0-9_.-]+", "_", self.name)
+        slug = re.sub(r"[^A-Za-z0-9_.+-]+", "_", self.name)
         return f"{slug}-l{self.level}-v{self.views}-r{self.resolution}-s{self.seed}"
 
 
@@ -93,7 +107,7 @@ def ensure_scene(spec: SceneSpec, cache: Path, data_root: Optional[Path]) -> Pat
         return out
     partial = out.with_name(out.name + ".partial")
     shutil.rmtree(partial, ignore_errors=True)
-    build_scene(partial, spec.source, n_views=spec.views, level=spec.level, seed=spec.seed,
+    build_scene(partial, spec.source, n_views=spec.views, level=spec.level, kinds=spec.kinds, seed=spec.seed,
                 resolution=spec.resolution, data_root=data_root, mesh_resolution=spec.mesh_resolution)
     shutil.rmtree(out, ignore_errors=True)
     partial.rename(out)
