@@ -89,3 +89,32 @@ def test_neus_trains_the_corrections_of_unfrozen_views(tiny_scene, tmp_path):
     # off (the default): no parameters, no state-dict entry, no loss term
     plain = tiny_config("neus", tiny_scene, tmp_path / "plain").setup().model
     assert plain.camera_optimizer is None and not any("camera" in k for k in plain.state_dict())
+
+
+def test_train_until_freezes_the_corrections_and_drops_their_penalty(tiny_scene, tmp_path):
+    """``train_until=0.5`` of 4 steps: the corrections move in steps 0-1 and stay put in steps 2-3 (no
+    gradient reaches them, their penalty is 0); the summary keeps the rotation vectors."""
+    with pytest.raises(ConfigError, match="train_until"):
+        CameraOptimizerConfig(mode="SO3", train_until=1.5).setup(num_views=2)
+    optimizer = CameraOptimizerConfig(mode="SO3", penalty_weight=1.0, train_until=0.5).setup(num_views=2)
+    with torch.no_grad():
+        optimizer.correction.fill_(0.1)
+    optimizer.set_step(1, 4)
+    assert not optimizer.frozen and float(optimizer.loss().detach()) == pytest.approx(0.01)
+    optimizer.set_step(2, 4)
+    assert optimizer.frozen and float(optimizer.loss()) == 0.0
+    rotations, _ = optimizer.corrections()
+    assert not rotations.requires_grad and torch.allclose(rotations[1], rotation_matrix(torch.full((3,), 0.1)))
+    assert optimizer.summary()["rotation_vector"][1] == pytest.approx([0.1, 0.1, 0.1])
+
+    torch.manual_seed(0)
+    config = tiny_config("neus", tiny_scene, tmp_path / "run", steps=4,
+                         **{"pipeline.model.camera_opt.mode": "SO3", "pipeline.model.camera_opt.train_until": 0.5})
+    trainer = config.setup()
+    correction = trainer.model.camera_optimizer.correction
+    after = []
+    for _ in range(4):
+        trainer.run_step()
+        after.append(correction.detach().clone())
+    assert (after[1] - torch.zeros_like(after[1])).abs().sum() > 0  # steps 0-1 train it
+    assert torch.equal(after[1], after[2]) and torch.equal(after[2], after[3])  # steps 2-3 leave it alone

@@ -45,6 +45,10 @@ class CameraOptimizerConfig(InstantiateConfig):
     """Training views whose camera stays as given (the generator's conditioning view)."""
     penalty_weight: float = 1e-2
     """Weight of the mean squared correction (radians and scene units) in the loss."""
+    train_until: float = 1.0
+    """Share of the step budget after which the corrections stay as they are (1: trained to the end).
+    While the hash grid's fine levels are still closed the field cannot bend its texture around a turned
+    camera, so the photometric loss pins the pose; once they open, field and camera can drift together."""
 
 
 class CameraOptimizer(PerViewCorrection):
@@ -55,11 +59,24 @@ class CameraOptimizer(PerViewCorrection):
             raise ConfigError(f"camera_opt.mode must be one of {', '.join(CAMERA_OPT_MODES)}, got {config.mode!r}")
         if config.penalty_weight < 0:
             raise ConfigError(f"camera_opt.penalty_weight must be >= 0, got {config.penalty_weight}")
+        if not 0.0 <= config.train_until <= 1.0:
+            raise ConfigError(f"camera_opt.train_until must be in [0, 1], got {config.train_until}")
         super().__init__(num_views, 6, config.frozen_views, config.penalty_weight)
         self.config = config
         self.enabled = config.mode != "off" and num_views > 0
+        self.frozen = False
+        """Set by the model once ``train_until`` of the budget has passed: the corrections are then applied
+        without gradient and their penalty is 0, so the optimizer leaves them as they are."""
         if config.mode == "SO3":
             self.trained[:, 3:] = 0.0
+
+    def set_step(self, step: int, max_steps: int) -> None:
+        """Freeze the corrections from step ``train_until * max_steps`` on."""
+        self.frozen = step >= self.config.train_until * max_steps
+
+    def loss(self) -> torch.Tensor:
+        penalty = super().loss()
+        return penalty.detach() * 0.0 if self.frozen else penalty
 
     def corrections(self) -> Tuple[torch.Tensor, torch.Tensor]:
         """Rotations ``[V, 3, 3]`` and translations ``[V, 3]`` of every training view."""
@@ -68,7 +85,8 @@ class CameraOptimizer(PerViewCorrection):
 
     def _vectors(self) -> Tuple[torch.Tensor, torch.Tensor]:
         """Rotation vectors and translations ``[V, 3]`` as applied (frozen entries zero, sizes clamped)."""
-        delta = self.correction * self.trained
+        correction = self.correction.detach() if self.frozen else self.correction
+        delta = correction * self.trained
         return _clamp_norm(delta[:, :3], MAX_ROTATION_RAD), _clamp_norm(delta[:, 3:], MAX_TRANSLATION)
 
     def apply(self, rays: RayBundle) -> RayBundle:
@@ -86,12 +104,15 @@ class CameraOptimizer(PerViewCorrection):
 
     @torch.no_grad()
     def summary(self) -> Dict[str, object]:
-        """Per view the correction's angle (degrees) and translation length, and their largest values."""
+        """Per view the correction's angle (degrees), rotation vector (world frame, radians), translation
+        and its length, and the largest angle and length."""
         rotvec, translations = self._vectors()  # the angle is the rotation vector's length
         degrees = torch.rad2deg(rotvec.norm(dim=-1))[: self.num_views].tolist()
         shifts = translations.norm(dim=-1)[: self.num_views].tolist()
         return {"mode": self.config.mode, "rotation_deg": [round(d, 4) for d in degrees],
+                "rotation_vector": [[round(v, 6) for v in row] for row in rotvec[: self.num_views].tolist()],
                 "translation": [round(s, 5) for s in shifts],
+                "translation_vector": [[round(v, 6) for v in row] for row in translations[: self.num_views].tolist()],
                 "max_rotation_deg": round(max(degrees, default=0.0), 6),
                 "max_translation": round(max(shifts, default=0.0), 5)}
 

@@ -203,6 +203,7 @@ class NeuSModel(Model):
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         if self.camera_optimizer is not None:  # training views' rays, as refined; novel views unchanged
+            self.camera_optimizer.set_step(self.step, self.scene.max_steps)
             ray_bundle = self.camera_optimizer.apply(ray_bundle)
         nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions,
                                                  self.scene.scene_radius)
