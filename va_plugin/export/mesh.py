@@ -27,8 +27,12 @@ def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: 
 
 
 def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, with_color: bool = True,
-                 largest_component: bool = False) -> trimesh.Trimesh:
+                 largest_component: bool = False, fill_cavities: Optional[bool] = None) -> trimesh.Trimesh:
     """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound.
+
+    ``fill_cavities``: empty space that no path of empty grid cells connects to the grid's border is
+    made solid first (:func:`fill_enclosed_cavities`), so the mesh is the object's outer surface only;
+    ``None`` takes the model's ``fill_mesh_cavities`` (default False).
 
     Raises VAError when the field has no surface inside the bound (all inside or all outside).
     """
@@ -38,22 +42,27 @@ def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, wi
     radius = float(model.scene.scene_radius)
     bound = radius if bound is None else bound
 
-    def clipped(points: torch.Tensor) -> torch.Tensor:
-        # outside the bounding sphere counts as empty, so no surface appears beyond the bound
-        return torch.maximum(model.mesh_field(points), points.norm(dim=-1) - radius)
-
     was_training = model.training
     model.eval()
     try:
-        values = sample_grid(clipped, resolution, bound, device)
+        values = sample_grid(model.mesh_field, resolution, bound, device)
     finally:
         model.train(was_training)
     if not np.isfinite(values).all():
         raise VAError("the field holds NaN or infinite values; the run diverged, so there is no mesh to extract")
+    spacing = 2.0 * bound / (resolution - 1)
+    prepare = getattr(model, "prepare_mesh_grid", None)
+    if prepare is not None:  # e.g. ngp: its density smoothed in log space
+        values = prepare(values, spacing)
+    # outside the bounding sphere counts as empty, so no surface appears beyond the bound
+    values = np.maximum(values, sphere_distance_grid(resolution, bound, radius))
     if values.min() >= 0.0 or values.max() <= 0.0:
         raise VAError("the field has no surface inside the scene bound (no zero crossing); "
                       "the run may have diverged or trained too briefly")
-    spacing = 2.0 * bound / (resolution - 1)
+    if fill_cavities is None:
+        fill_cavities = bool(getattr(model, "fill_mesh_cavities", False))
+    if fill_cavities:
+        values = fill_enclosed_cavities(values)
     filled = inside_share_at_bound(values, bound, radius, spacing)
     if filled > BOUND_FILLED_SHARE:
         warnings.warn(f"the field is inside the object over {filled:.0%} of the bounding sphere, so most of the "
@@ -79,6 +88,35 @@ def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, wi
         rgb = (torch.cat(colors).numpy() * 255 + 0.5).astype(np.uint8)
         mesh.visual.vertex_colors = np.concatenate([rgb, np.full((len(rgb), 1), 255, np.uint8)], 1)
     return mesh
+
+
+def sphere_distance_grid(resolution: int, bound: float, radius: float) -> np.ndarray:
+    """``|x| - radius`` on the grid of :func:`sample_grid`, ``[R, R, R]`` float32."""
+    axis = np.linspace(-bound, bound, resolution, dtype=np.float32)
+    return np.sqrt(axis[:, None, None] ** 2 + axis[None, :, None] ** 2 + axis[None, None, :] ** 2) - radius
+
+
+def fill_enclosed_cavities(values: np.ndarray) -> np.ndarray:
+    """``values [R, R, R]`` (negative inside) with every enclosed cavity made inside.
+
+    A cavity is a 6-connected component of empty cells (value >= 0) that does not reach the grid's
+    border: no camera outside the object sees into it, so it is unsupervised, and a density field
+    trained on few views leaves one behind its surface (a shell whose inner wall doubles the mesh and
+    leaves its inside empty for the volume tests). Cavity cells get minus their value, so marching
+    cubes finds no surface between them and the shell around them. Returns a new array.
+    """
+    from scipy import ndimage
+
+    empty = values >= 0.0
+    labels, count = ndimage.label(empty)
+    if count <= 1:
+        return values
+    border = np.unique(np.concatenate([labels[[0, -1]].ravel(), labels[:, [0, -1]].ravel(),
+                                       labels[:, :, [0, -1]].ravel()]))
+    cavity = empty & ~np.isin(labels, border)
+    out = values.copy()
+    out[cavity] = -np.abs(out[cavity]) - 1e-6
+    return out
 
 
 BOUND_FILLED_SHARE = 0.5
