@@ -51,11 +51,12 @@ class NGPModelConfig(ModelConfig):
     density_threshold: float = 10.0
     """Density of the extracted surface: the mesh is the level set density = threshold (mesh_field is
     threshold - density, negative inside)."""
-    mesh_smoothing: float = 0.0
-    """Width (scene units, the std of a Gaussian) by which the log density is smoothed before the mesh
-    is extracted (0: not smoothed). A density field trained on few views is rough at the voxel scale, and
-    its level set doubles the surface's area with bumps."""
-    fill_mesh_cavities: bool = False
+    mesh_smoothing: float = 0.021
+    """Width (scene units, the std of a Gaussian) by which the occupancy is smoothed before the mesh is
+    extracted (0: not smoothed; 0.021 is 1.5 cells of a 128^3 grid over a 0.9 scene radius). A density
+    field trained on few views is rough at the voxel scale: its raw level set has 1.9x the true area on
+    GSO-10 and grows rougher with more steps (benchmarks/RESULTS.md, "ngp mesh extraction")."""
+    fill_mesh_cavities: bool = True
     """Make empty space that is enclosed by the surface solid before the mesh is extracted (no camera
     sees it; a density shell leaves it behind its front wall)."""
 
