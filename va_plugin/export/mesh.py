@@ -27,12 +27,12 @@ def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: 
 
 
 def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, with_color: bool = True,
-                 largest_component: bool = False, fill_cavities: Optional[bool] = None) -> trimesh.Trimesh:
+                 largest_component: bool = False) -> trimesh.Trimesh:
     """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound.
 
-    ``fill_cavities``: empty space that no path of empty grid cells connects to the grid's border is
-    made solid first (:func:`fill_enclosed_cavities`), so the mesh is the object's outer surface only;
-    ``None`` takes the model's ``fill_mesh_cavities`` (default False).
+    A model may reshape the sampled grid first (``prepare_mesh_grid(values, spacing)``, e.g. ngp's
+    smoothing) and ask for enclosed empty space to be made solid (``fill_mesh_cavities``, see
+    :func:`fill_enclosed_cavities`), so that the mesh is the object's outer surface only.
 
     Raises VAError when the field has no surface inside the bound (all inside or all outside).
     """
@@ -59,9 +59,7 @@ def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, wi
     if values.min() >= 0.0 or values.max() <= 0.0:
         raise VAError("the field has no surface inside the scene bound (no zero crossing); "
                       "the run may have diverged or trained too briefly")
-    if fill_cavities is None:
-        fill_cavities = bool(getattr(model, "fill_mesh_cavities", False))
-    if fill_cavities:
+    if getattr(model, "fill_mesh_cavities", False):
         values = fill_enclosed_cavities(values)
     filled = inside_share_at_bound(values, bound, radius, spacing)
     if filled > BOUND_FILLED_SHARE:
@@ -126,9 +124,8 @@ BOUND_FILLED_SHARE = 0.5
 def inside_share_at_bound(values: np.ndarray, bound: float, radius: float, spacing: float) -> float:
     """Share of the grid points in the shell just inside the bounding sphere (two cells thick) where the
     field is inside the object; ``values`` is the ``[R, R, R]`` grid of :func:`sample_grid`."""
-    axis = np.linspace(-bound, bound, values.shape[0])
-    r = np.sqrt(axis[:, None, None] ** 2 + axis[None, :, None] ** 2 + axis[None, None, :] ** 2)
-    shell = (r < radius) & (r > radius - 2.0 * spacing)
+    depth = sphere_distance_grid(values.shape[0], bound, radius)  # |x| - radius
+    shell = (depth < 0.0) & (depth > -2.0 * spacing)
     return float((values[shell] < 0).mean()) if shell.any() else 0.0
 
 

@@ -75,8 +75,7 @@ class CameraOptimizer(PerViewCorrection):
         self.frozen = step >= self.config.train_until * max_steps
 
     def loss(self) -> torch.Tensor:
-        penalty = super().loss()
-        return penalty.detach() * 0.0 if self.frozen else penalty
+        return self.correction.new_zeros(()) if self.frozen else super().loss()
 
     def corrections(self) -> Tuple[torch.Tensor, torch.Tensor]:
         """Rotations ``[V, 3, 3]`` and translations ``[V, 3]`` of every training view."""

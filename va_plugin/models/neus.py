@@ -128,6 +128,11 @@ class NeuSModel(Model):
         span = self.config.cos_anneal_fraction * self.scene.max_steps
         return 1.0 if span <= 0 else min(1.0, self.step / span)
 
+    def update_step(self, step: int) -> None:
+        super().update_step(step)
+        if self.camera_optimizer is not None:
+            self.camera_optimizer.set_step(step, self.scene.max_steps)
+
     def training_callbacks(self) -> List[object]:
         callbacks = list(super().training_callbacks())
         if self.camera_optimizer is not None:
@@ -203,7 +208,6 @@ class NeuSModel(Model):
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         if self.camera_optimizer is not None:  # training views' rays, as refined; novel views unchanged
-            self.camera_optimizer.set_step(self.step, self.scene.max_steps)
             ray_bundle = self.camera_optimizer.apply(ray_bundle)
         nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions,
                                                  self.scene.scene_radius)
