@@ -72,8 +72,13 @@ def recovery(run_dir: Path) -> Dict[str, Any]:
     learned = json.loads(refinement_file.read_text())
     if "rotation_vector" not in learned:
         raise VAError(f"{refinement_file}: written by an older version without rotation vectors; retrain")
+    if not (run_dir / "config.json").is_file():
+        raise VAError(f"{run_dir}: no config.json; not a va-train run folder")
     config = json.loads((run_dir / "config.json").read_text())
     scene_dir = Path(config["pipeline"]["datamanager"]["dataparser"]["data"])
+    if not (scene_dir / "scene.json").is_file():
+        raise VAError(f"{run_dir} was trained on {scene_dir}, which has no scene.json here: not a benchmark "
+                      "scene, or a relative path to be read from the folder the run was trained in")
     info = json.loads((scene_dir / "scene.json").read_text())
     truth = true_corrections(scene_dir)
     views: List[Dict[str, Any]] = []
