@@ -25,7 +25,7 @@ import torch
 from va_plugin.cli.common import friendly_errors
 from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
-from va_plugin.eval.evaluate import image_metrics
+from va_plugin.eval.evaluate import ground_truth_mesh_path, image_metrics, load_mesh
 from va_plugin.eval.mesh_render import textured_mesh_metrics
 from va_plugin.export.mesh import extract_mesh
 from va_plugin.export.texture import (Views, bake_picture, bake_texture, check_texture_size, field_fallback,
@@ -68,12 +68,25 @@ def field_scores(pipeline, run: Path, max_views, reuse: bool) -> dict:
     return image_metrics(pipeline, max_views=max_views, progress=False)
 
 
+def run_mesh(pipeline, source: str, resolution: int):
+    """The mesh to texture: the run's own (marching cubes at ``resolution``^3) or, as a diagnostic of how much
+    of the textured score is the geometry's, the scene's ground-truth mesh."""
+    if source == "truth":
+        path = ground_truth_mesh_path(pipeline)
+        if path is None:
+            raise ConfigError("--mesh truth: the run's scene has no ground-truth mesh")
+        return load_mesh(path)
+    return extract_mesh(pipeline.model, resolution=resolution, with_color=False)
+
+
 def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean"),
-             reuse_field: bool = False) -> dict:
+             reuse_field: bool = False, mesh_source: str = "extracted", mesh_resolution: int = 128) -> dict:
     pipeline, state = load_run(run, device="cpu")
-    record = {"run": str(run), "steps": int(state["step"])}
+    record = {"run": str(run), "steps": int(state["step"]), "mesh": mesh_source}
+    if mesh_source == "extracted":
+        record["mesh_resolution"] = mesh_resolution
     started = time.perf_counter()
-    mesh = extract_mesh(pipeline.model, resolution=128, with_color=False)
+    mesh = run_mesh(pipeline, mesh_source, mesh_resolution)
     record["mesh_seconds"] = round(time.perf_counter() - started, 2)
     record["vertices"], record["faces"] = len(mesh.vertices), len(mesh.faces)
     field = field_scores(pipeline, run, max_views, reuse_field)
@@ -89,7 +102,7 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
         atlas = (textured.vertices, textured.faces, textured.uv)  # unwrap once, bake twice
         scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False)
         record[fusion] = {**{k: scores[k] for k in KEYS}, **report.summary()}
-        if fusion == "robust":
+        if fusion == "robust" and mesh_source == "extracted" and mesh_resolution == 128:
             bake_picture(textured, report, run / "texture_bake.png")
     if timing_count:
         _, report = bake_texture(mesh, timing_views(pipeline, timing_count), size=size, fusion="robust",
@@ -128,7 +141,14 @@ def main(argv=None) -> int:
     parser.add_argument("--reuse-field-scores", action="store_true",
                         help="take the field's scores from RUN/bench_row.json (all held-out views, written by "
                         "run_backbone) instead of rendering them again; needs no --max-views")
+    parser.add_argument("--mesh", choices=("extracted", "truth"), default="extracted",
+                        help="texture the run's own mesh (default) or the scene's ground-truth mesh: how much of "
+                        "the textured score is the geometry's")
+    parser.add_argument("--mesh-resolution", type=int, default=128,
+                        help="marching-cubes grid of the extracted mesh (default 128)")
     args = parser.parse_args(argv)
+    if not 16 <= args.mesh_resolution <= 512:
+        raise ConfigError(f"--mesh-resolution must be in [16, 512], got {args.mesh_resolution}")
     bakes = [b.strip() for b in args.bakes.split(",") if b.strip()]
     unknown = [b for b in bakes if b not in BAKES]
     if unknown:
@@ -145,7 +165,7 @@ def main(argv=None) -> int:
         if str(run) in done:
             continue
         record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes,
-                          args.reuse_field_scores)
+                          args.reuse_field_scores, args.mesh, args.mesh_resolution)
         done[str(run)] = record
         with args.out.open("a") as f:
             f.write(json.dumps(record) + "\n")

@@ -55,3 +55,20 @@ def test_field_scores_can_come_from_the_benchmark_row(run, tmp_path):
     assert script.main(base + ["--out", str(out), "--max-views", "1"]) == 0
     record = json.loads(out.read_text())
     assert record["field"]["psnr"] != 1.5 and "field_from" not in record
+
+
+def test_the_ground_truth_mesh_or_a_finer_grid_can_be_textured(run, tmp_path):
+    """--mesh truth textures the scene's ground-truth mesh (how much of the score is the geometry's);
+    --mesh-resolution sets the extracted mesh's grid; a resolution out of range is one line, exit 2."""
+    script = load_script("run_texture")
+    base = ["--runs", str(run), "--texture-size", "32", "--max-views", "1", "--timing-views", "0"]
+    out = tmp_path / "truth.jsonl"
+    assert script.main(base + ["--out", str(out), "--mesh", "truth"]) == 0
+    truth = json.loads(out.read_text())
+    out = tmp_path / "fine.jsonl"
+    assert script.main(base + ["--out", str(out), "--mesh-resolution", "48"]) == 0
+    fine = json.loads(out.read_text())
+    assert truth["mesh"] == "truth" and "mesh_resolution" not in truth
+    assert fine["mesh"] == "extracted" and fine["mesh_resolution"] == 48
+    assert truth["faces"] != fine["faces"] and truth["robust"]["texels_seen"] > 0
+    assert script.main(base + ["--out", str(tmp_path / "bad.jsonl"), "--mesh-resolution", "4"]) == 2
