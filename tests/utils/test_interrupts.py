@@ -66,3 +66,68 @@ def test_a_ctrl_c_while_trimesh_imports_its_optional_parts_interrupts_the_import
     """)
     done = subprocess.run([sys.executable, "-c", script], capture_output=True, text=True, timeout=120)
     assert done.stdout.strip() == "interrupted", done.stdout + done.stderr
+
+
+def test_sigterm_inside_a_command_is_taken_like_ctrl_c():
+    """friendly_errors runs a command with SIGTERM raising KeyboardInterrupt: it ends as 'interrupted' with
+    exit status 130 (after the command's own interrupt handling), and SIGTERM's default is back afterwards."""
+    from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
+
+    reached = []
+
+    @friendly_errors
+    def command() -> int:
+        try:
+            os.kill(os.getpid(), signal.SIGTERM)
+            time.sleep(5)
+        except KeyboardInterrupt:
+            reached.append("saved")
+            raise
+        return 0
+
+    assert command() == EXIT_INTERRUPTED and reached == ["saved"]
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
+def test_sigterm_stops_a_parallel_benchmark_and_its_workers(tmp_path):
+    """``kill`` on run_backbone --jobs 2 interrupts its worker processes too (they used to run on, orphaned,
+    until their rows ended) and the command exits 130."""
+    root = os.path.dirname(os.path.dirname(os.path.dirname(os.path.abspath(__file__))))
+    command = [sys.executable, os.path.join(root, "benchmarks", "run_backbone.py"), "--preset", "smoke",
+               "--jobs", "2", "--steps", "100000", "--out", str(tmp_path / "out")]
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+                               start_new_session=True)
+    try:
+        children = []
+        deadline = time.monotonic() + 240
+        while time.monotonic() < deadline and len(children) < 2:  # both workers started and busy
+            time.sleep(2)
+            listed = subprocess.run(["pgrep", "-P", str(process.pid)], capture_output=True, text=True).stdout.split()
+            children = [int(pid) for pid in listed if _cpu_seconds(int(pid)) > 3.0]
+        assert len(children) == 2, "the workers did not start"
+        process.send_signal(signal.SIGTERM)
+        output, _ = process.communicate(timeout=240)
+        assert process.returncode == 130, output
+        assert not [pid for pid in children if _alive(pid)], output
+    finally:  # whatever happened, nothing of it keeps running
+        try:
+            os.killpg(process.pid, signal.SIGKILL)
+        except ProcessLookupError:
+            pass
+        process.wait()
+
+
+def _cpu_seconds(pid: int) -> float:
+    try:
+        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+    except OSError:
+        return 0.0
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def _alive(pid: int) -> bool:
+    try:
+        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"

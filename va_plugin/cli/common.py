@@ -10,20 +10,23 @@ from pathlib import Path
 from typing import Callable
 
 from va_plugin.errors import VAError
+from va_plugin.utils.interrupts import terminate_as_interrupt
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
 
 
 def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
-    """Turn VAError into ``error: <message>`` on stderr with exit status 2 (no traceback)."""
+    """Turn VAError into ``error: <message>`` on stderr with exit status 2 (no traceback); Ctrl-C, and SIGTERM
+    taken like it, into ``interrupted`` and exit status 130 once the command has saved what it can."""
 
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
         shown = warnings.showwarning
         warnings.showwarning = _one_line_warning
         try:
-            return main(*args, **kwargs)
+            with terminate_as_interrupt():
+                return main(*args, **kwargs)
         except VAError as exc:
             print(f"error: {exc}", file=sys.stderr)
             return EXIT_USER_ERROR

@@ -1,10 +1,15 @@
-"""Holding back Ctrl-C while code that swallows it runs.
+"""Holding back Ctrl-C while code that swallows it runs, and SIGTERM taken like Ctrl-C.
 
 trimesh imports its optional dependencies inside ``try: ... except BaseException``: a KeyboardInterrupt
 that lands during ``import trimesh`` is caught there, the interrupted module is replaced by a stand-in
 that fails later, and the program carries on as if no Ctrl-C had come (a benchmark interrupted two
 seconds after its start ran to the end and exited 0). Inside :func:`interrupt_deferred` a SIGINT only
 sets a flag; the KeyboardInterrupt is raised when the block ends.
+
+``kill PID`` (SIGTERM, also what batch systems send at a time limit) would by default end a command at
+once: no checkpoint, and a benchmark's worker processes left running their rows for up to an hour with
+nobody to send them to. Inside :func:`terminate_as_interrupt` it raises KeyboardInterrupt instead, so it
+takes Ctrl-C's way out (the training saves a checkpoint; the workers are interrupted and waited for).
 """
 
 from __future__ import annotations
@@ -33,3 +38,24 @@ def interrupt_deferred() -> Iterator[None]:
         signal.signal(signal.SIGINT, signal.default_int_handler)
     if received:
         raise KeyboardInterrupt
+
+
+@contextlib.contextmanager
+def terminate_as_interrupt() -> Iterator[None]:
+    """Run the block with SIGTERM raising KeyboardInterrupt (a second SIGTERM ends the process at once).
+
+    Does nothing off the main thread or when SIGTERM already has a handler other than the default."""
+    if (threading.current_thread() is not threading.main_thread()
+            or signal.getsignal(signal.SIGTERM) is not signal.SIG_DFL):
+        yield
+        return
+
+    def handler(signum, frame) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
+        raise KeyboardInterrupt
+
+    signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)
