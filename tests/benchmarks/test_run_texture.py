@@ -72,3 +72,12 @@ def test_the_ground_truth_mesh_or_a_finer_grid_can_be_textured(run, tmp_path):
     assert fine["mesh"] == "extracted" and fine["mesh_resolution"] == 48
     assert truth["faces"] != fine["faces"] and truth["robust"]["texels_seen"] > 0
     assert script.main(base + ["--out", str(tmp_path / "bad.jsonl"), "--mesh-resolution", "4"]) == 2
+
+
+def test_the_ground_truth_mesh_of_a_scene_without_one_is_one_error_line(run, tmp_path, monkeypatch, capsys):
+    script = load_script("run_texture")
+    monkeypatch.setattr(script, "ground_truth_mesh_path", lambda pipeline: None)
+    out = tmp_path / "none.jsonl"
+    assert script.main(["--runs", str(run), "--out", str(out), "--mesh", "truth", "--texture-size", "32",
+                        "--max-views", "1", "--timing-views", "0"]) == 2
+    assert capsys.readouterr().err.startswith("error: --mesh truth") and not out.exists()
