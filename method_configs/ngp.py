@@ -25,7 +25,7 @@ def ngp_config() -> TrainerConfig:
         ),
         optimizers={"fields": OptimizerConfig(lr=1e-2),
                     # used only when pipeline.model.view_appearance is switched on
-                    "view_appearance": OptimizerConfig(lr=1e-3)},
+                    "view_appearance": OptimizerConfig(lr=1e-3), "view_warp": OptimizerConfig(lr=1e-3)},
         scheduler=SchedulerConfig(warmup_steps=50, final_fraction=0.05),
         max_steps=1000,
     )

@@ -14,6 +14,7 @@ from va_plugin.data.dataparsers.base import DataParserConfig, DataparserOutputs
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
 from va_plugin.data.foreground import write_mask_picture
 from va_plugin.errors import DataError
+from va_plugin.model_components.view_warp import sample_bilinear
 from va_plugin.rays import RayBundle
 
 MASK_PICTURE = "masks.png"
@@ -93,18 +94,31 @@ class DataManager:
 
     def next_train(self, step: int) -> Tuple[RayBundle, Dict[str, torch.Tensor]]:
         """A random batch of training rays and their targets (``rgb [n, 3]``, ``mask [n, 1]``, and
-        ``normal [n, 3]`` when the input has normal maps)."""
+        ``normal [n, 3]`` when the input has normal maps), with ``pixel [n, 3]`` (view, row, column)."""
         flat = self._sample_flat_indices().to(self.device)
         pixels = self._height * self._width
         views, within = flat // pixels, flat % pixels
         rows, cols = within // self._width, within % self._width
         origins, directions = self.cameras.generate_rays(views, rows, cols)
-        batch = {"rgb": self.images[views, rows, cols]}
+        batch = {"rgb": self.images[views, rows, cols], "pixel": torch.stack([views, rows, cols], -1)}
         if self.masks is not None:
             batch["mask"] = self.masks[views, rows, cols]
         if self.normals is not None:
             batch["normal"] = self.normals[views, rows, cols]
         return RayBundle(origins, directions, views), batch
+
+    def warped_targets(self, batch: Dict[str, torch.Tensor], shifts: torch.Tensor) -> Dict[str, torch.Tensor]:
+        """``batch`` with its targets read at ``pixel + shifts`` (``shifts [n, 2]``: columns, rows, in pixels;
+        bilinear, differentiable in the shifts) instead of at the pixels themselves."""
+        views, rows, cols = batch["pixel"].unbind(-1)
+        rows_f, cols_f = rows.to(shifts.dtype) + shifts[:, 1], cols.to(shifts.dtype) + shifts[:, 0]
+        out = dict(batch)
+        out["rgb"] = sample_bilinear(self.images, views, rows_f, cols_f)
+        if self.masks is not None:
+            out["mask"] = sample_bilinear(self.masks, views, rows_f, cols_f)
+        if self.normals is not None:
+            out["normal"] = sample_bilinear(self.normals, views, rows_f, cols_f)
+        return out
 
     def image_rays(self, outputs: DataparserOutputs, index: int, camera_index: Optional[int] = None
                    ) -> RayBundle:

@@ -15,6 +15,7 @@ from va_plugin.config import InstantiateConfig
 from va_plugin.engine.callbacks import AFTER_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.model_components.view_appearance import ViewAppearanceConfig
+from va_plugin.model_components.view_warp import ViewWarpConfig
 from va_plugin.rays import RayBundle
 
 
@@ -41,10 +42,16 @@ class ModelConfig(InstantiateConfig):
     view_appearance: ViewAppearanceConfig = field(default_factory=ViewAppearanceConfig)
     """Per-view colour correction of the training views' renders (``mode``: off, gain or affine; its
     learning rate is the "view_appearance" optimizer group). Novel views and mesh colours never use it."""
+    view_warp: ViewWarpConfig = field(default_factory=ViewWarpConfig)
+    """Per-view smooth image warp of the training targets (``enabled``; its learning rate is the "view_warp"
+    optimizer group): view i's ray through pixel p is compared with the input at p + s_i(p). The geometry,
+    the mesh and novel views never use it."""
 
 
 VIEW_APPEARANCE_FILE = "view_appearance.json"
 """In a run folder with per-view appearance: each training view's colour matrix and offset."""
+VIEW_WARP_FILE = "view_warp.json"
+"""In a run folder with per-view warps: each training view's RMS and largest shift."""
 
 ExtraLoss = Callable[[Dict[str, torch.Tensor], Dict[str, torch.Tensor], int], Dict[str, torch.Tensor]]
 
@@ -66,6 +73,9 @@ class Model(nn.Module):
         self.view_appearance = config.view_appearance.setup(num_views=scene.num_train_views) \
             if config.view_appearance.mode != "off" else None
         """Per-view colour corrections, or None (then the state dict has no entry for them)."""
+        self.view_warp = config.view_warp.setup(num_views=scene.num_train_views) \
+            if config.view_warp.enabled else None
+        """Per-view target warps (applied by the pipeline to each batch's targets), or None."""
 
     # -- training -------------------------------------------------------------------------------
     def update_step(self, step: int) -> None:
@@ -75,6 +85,8 @@ class Model(nn.Module):
         field = getattr(self, "field", None)
         if field is not None:
             field.update_step(step, self.scene.max_steps)
+        if self.view_warp is not None:
+            self.view_warp.set_step(step, self.scene.max_steps)
 
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         raise NotImplementedError
@@ -96,11 +108,15 @@ class Model(nn.Module):
         """``groups`` plus the groups of the parts every model may have (the per-view colour correction)."""
         if self.view_appearance is not None:
             groups["view_appearance"] = list(self.view_appearance.parameters())
+        if self.view_warp is not None:
+            groups["view_warp"] = list(self.view_warp.parameters())
         return groups
 
     def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
         if self.view_appearance is not None:
             losses["view_appearance"] = self.view_appearance.loss()
+        if self.view_warp is not None:
+            losses["view_warp"] = self.view_warp.loss()
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
         return losses
@@ -108,7 +124,7 @@ class Model(nn.Module):
     def get_metrics_dict(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]
                          ) -> Dict[str, float]:
         """Training-batch PSNR of the rendered colour."""
-        mse = ((outputs["rgb"].detach() - batch["rgb"]) ** 2).mean()
+        mse = ((outputs["rgb"].detach() - batch["rgb"].detach()) ** 2).mean()
         return {"psnr": float(psnr_from_mse(mse))}
 
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
@@ -121,11 +137,17 @@ class Model(nn.Module):
         callbacks = list(make()) if make is not None else []
         if self.view_appearance is not None:
             callbacks.append(TrainingCallback(self._write_view_appearance, AFTER_STEP))
+        if self.view_warp is not None:
+            callbacks.append(TrainingCallback(self._write_view_warp, AFTER_STEP))
         return callbacks
 
     def _write_view_appearance(self, step: int, attributes: TrainingCallbackAttributes) -> None:
         self.write_after_last_step(step, attributes, VIEW_APPEARANCE_FILE, self.view_appearance.summary,
                                    lambda s: f"view appearance: largest colour change {s['max_change']:.4f}")
+
+    def _write_view_warp(self, step: int, attributes: TrainingCallbackAttributes) -> None:
+        self.write_after_last_step(step, attributes, VIEW_WARP_FILE, self.view_warp.summary,
+                                   lambda s: f"view warp: largest shift {s['largest_px']:.2f} px")
 
     @staticmethod
     def write_after_last_step(step: int, attributes: TrainingCallbackAttributes, filename: str,
@@ -147,6 +169,8 @@ class Model(nn.Module):
         out = dict(report()) if report is not None else {}
         if self.view_appearance is not None:
             out["appearance_max"] = round(self.view_appearance.max_change(), 5)
+        if self.view_warp is not None:
+            out["warp_max_px"] = round(self.view_warp.largest(), 4)
         return out
 
     def sharpness(self) -> Optional[float]:

@@ -44,6 +44,11 @@ class Pipeline(nn.Module):
         self.model.update_step(step)
         with stage("data"):
             ray_bundle, batch = self.datamanager.next_train(step)
+            warp = self.model.view_warp
+            if warp is not None and warp.active:  # targets read where the view's learned warp says
+                views, rows, cols = batch["pixel"].unbind(-1)
+                height, width = self.datamanager.images.shape[1:3]
+                batch = self.datamanager.warped_targets(batch, warp.shifts(views, rows, cols, height, width))
         with stage("rendering"):  # what the stages nested in the model's forward (sampling, ...) leave
             outputs = self.model.get_outputs(ray_bundle)
             loss_dict = self.model.get_loss_dict(outputs, batch)

@@ -1,0 +1,129 @@
+"""Per-view image warp: a learned, smooth 2-D displacement of where each training view's targets are read.
+
+A generated view draws the object a little out of place: parts sit a pixel or a few off where a
+consistent object would put them (SyncDreamer's views disagree by such low-frequency warps and by small
+orbit errors, which in a view look much the same). With one shared geometry every such view pulls the
+surface its own way and the result is a blurred compromise. Here the ray through pixel ``p`` of view i
+is compared with the input at ``p + s_i(p)`` instead of ``p``: ``s_i`` is a coarse grid of 2-D shifts over
+the image (``grid`` control points per side, bilinear in between, so smooth by construction), zero at the
+start and held near zero by a quadratic penalty. The shift is learned from the photometric and mask
+losses through the input image's bilinear interpolation (the classic image-registration step), so it
+costs one gather per ray and nothing in the field.
+
+The geometry, the mesh and novel views are untouched by it; the conditioning view (view 0 by default)
+stays unwarped and pins the frame, and the shift starts only after ``start`` of the budget, once the
+shared field has a shape to register the views against.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Dict, Tuple, Type
+
+import torch
+
+from va_plugin.config import InstantiateConfig
+from va_plugin.errors import ConfigError
+from va_plugin.model_components.per_view import PerViewCorrection
+
+MAX_SHIFT = 0.05
+"""Largest shift, as a fraction of the image's larger side (13 px at 256 px): real generator warps are a
+few pixels, and a diverging run cannot slide a view off the object."""
+
+
+@dataclass
+class ViewWarpConfig(InstantiateConfig):
+    """Per-view smooth image warps of the training targets (off by default)."""
+
+    _target: Type = field(default_factory=lambda: ViewWarp)
+    enabled: bool = False
+    """Give every training view (except ``frozen_views``) its own learned warp."""
+    grid: int = 5
+    """Control points per image side of each view's shift grid (at least 2; 2 is an affine-like warp)."""
+    frozen_views: Tuple[int, ...] = (0,)
+    """Views read where their pixels are (the generator's conditioning view)."""
+    penalty_weight: float = 1.0
+    """Weight of the mean squared shift (in fractions of the image side) in the loss."""
+    start: float = 0.1
+    """Share of the step budget before which the targets are read unwarped (the field first needs a shape)."""
+
+
+class ViewWarp(PerViewCorrection):
+    """Shift grids ``[V, 2 * grid * grid]`` (x then y, row-major), fractions of the image side, zero at the
+    start."""
+
+    def __init__(self, config: ViewWarpConfig, num_views: int) -> None:
+        if config.grid < 2:
+            raise ConfigError(f"view_warp.grid must be at least 2, got {config.grid}")
+        if config.penalty_weight < 0:
+            raise ConfigError(f"view_warp.penalty_weight must be >= 0, got {config.penalty_weight}")
+        if not 0.0 <= config.start < 1.0:
+            raise ConfigError(f"view_warp.start must be in [0, 1), got {config.start}")
+        super().__init__(num_views, 2 * config.grid * config.grid, config.frozen_views, config.penalty_weight)
+        self.config = config
+        self.active = config.start == 0.0
+        """Whether the warp is applied (from ``start`` of the budget on); set by ``set_step``."""
+        self.image_side = 0
+        """The larger side of the images warped last (pixels), for the summary."""
+
+    def set_step(self, step: int, max_steps: int) -> None:
+        self.active = step >= self.config.start * max_steps
+
+    def _grids(self) -> torch.Tensor:
+        """Shift grids ``[V, G, G, 2]`` as applied (frozen views zero, each component clamped)."""
+        g = self.config.grid
+        delta = (self.correction * self.trained).clamp(-MAX_SHIFT, MAX_SHIFT)
+        return delta.reshape(-1, 2, g, g).permute(0, 2, 3, 1)
+
+    def shifts(self, views: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor, height: int, width: int
+               ) -> torch.Tensor:
+        """Shifts ``[n, 2]`` (columns, rows; pixels) of pixels ``(rows, cols)`` of training views ``views``
+        (zero for views outside the training set), bilinear between the grid's control points, which span
+        the image from the first pixel's centre to the last's."""
+        g = self.config.grid
+        self.image_side = max(height, width)
+        known = (views >= 0) & (views < self.num_views)
+        safe = torch.where(known, views, torch.zeros_like(views))
+        gx = cols.to(torch.float32) * ((g - 1) / max(width - 1, 1))
+        gy = rows.to(torch.float32) * ((g - 1) / max(height - 1, 1))
+        x0 = gx.floor().long().clamp(0, g - 2)
+        y0 = gy.floor().long().clamp(0, g - 2)
+        fx, fy = (gx - x0)[:, None], (gy - y0)[:, None]
+        grids = self._grids()
+        shift = ((1 - fx) * (1 - fy) * grids[safe, y0, x0] + fx * (1 - fy) * grids[safe, y0, x0 + 1]
+                 + (1 - fx) * fy * grids[safe, y0 + 1, x0] + fx * fy * grids[safe, y0 + 1, x0 + 1])
+        return shift * known[:, None].to(shift.dtype) * float(max(height, width))
+
+    @torch.no_grad()
+    def largest(self) -> float:
+        """The largest shift of any control point, pixels of the last images warped (fractions before any)."""
+        return float(self._grids().abs().max()) * max(self.image_side, 1)
+
+    @torch.no_grad()
+    def summary(self) -> Dict[str, object]:
+        """Per view the RMS and the largest shift of the control points, in pixels of the training images."""
+        side = max(self.image_side, 1)
+        grids = self._grids()[: self.num_views] * side
+        lengths = grids.norm(dim=-1).reshape(grids.shape[0], -1)
+        rms = lengths.pow(2).mean(-1).sqrt().tolist()
+        largest = lengths.max(-1).values.tolist()
+        return {"grid": self.config.grid, "image_side_px": self.image_side,
+                "rms_shift_px": [round(r, 4) for r in rms], "max_shift_px": [round(m, 4) for m in largest],
+                "largest_px": round(max(largest, default=0.0), 4)}
+
+
+def sample_bilinear(images: torch.Tensor, views: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor
+                    ) -> torch.Tensor:
+    """Values ``[n, C]`` of ``images [V, H, W, C]`` at fractional pixel positions ``(rows, cols)`` (pixel
+    centres at whole numbers) of ``views``, bilinear, clamped to the border; differentiable in the
+    positions (the slope inside each pixel cell) and in the images."""
+    height, width = images.shape[1:3]
+    rows = rows.clamp(0.0, height - 1.0)
+    cols = cols.clamp(0.0, width - 1.0)
+    r0 = rows.detach().floor().long().clamp(0, max(height - 2, 0))
+    c0 = cols.detach().floor().long().clamp(0, max(width - 2, 0))
+    r1 = (r0 + 1).clamp(max=height - 1)
+    c1 = (c0 + 1).clamp(max=width - 1)
+    fr, fc = (rows - r0)[:, None], (cols - c0)[:, None]
+    return ((1 - fr) * (1 - fc) * images[views, r0, c0] + (1 - fr) * fc * images[views, r0, c1]
+            + fr * (1 - fc) * images[views, r1, c0] + fr * fc * images[views, r1, c1])
