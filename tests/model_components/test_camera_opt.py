@@ -118,3 +118,22 @@ def test_train_until_freezes_the_corrections_and_drops_their_penalty(tiny_scene,
         after.append(correction.detach().clone())
     assert (after[1] - torch.zeros_like(after[1])).abs().sum() > 0  # steps 0-1 train it
     assert torch.equal(after[1], after[2]) and torch.equal(after[2], after[3])  # steps 2-3 leave it alone
+
+
+def test_the_surface_moves_with_the_camera_in_the_gradient(tiny_scene, tmp_path):
+    """The rendering pass evaluates the SDF at sample points detached from the rays (the field's gradient
+    is computed there); a camera correction must still see how moving its rays moves them through the
+    SDF. A translation of the camera changes nothing else (directions stay), so without that first-order
+    path its gradient was exactly zero."""
+    torch.manual_seed(0)
+    config = tiny_config("neus", tiny_scene, tmp_path / "run", steps=2, **{"pipeline.model.camera_opt.mode": "SE3"})
+    trainer = config.setup()
+    model = trainer.model
+    with torch.no_grad():
+        model.camera_optimizer.correction[:, 3:] = 0.01  # off zero: the penalty's own gradient is then 2 w x
+    rays, batch = trainer.pipeline.datamanager.next_train(0)
+    loss = model.get_loss_dict(model.get_outputs(rays), batch)
+    sum(v for k, v in loss.items() if k != "camera_opt").backward()
+    translation_grad = model.camera_optimizer.correction.grad[:, 3:]
+    assert torch.isfinite(translation_grad).all()
+    assert translation_grad[0].abs().sum() == 0 and bool((translation_grad[1:].abs().sum(-1) > 0).all())

@@ -277,6 +277,11 @@ class NeuSModel(Model):
                                                 create_graph=self.training, retain_graph=True)[0]
         if not self.training:
             sdf, geo_features, gradients = sdf.detach(), geo_features.detach(), gradients.detach()
+        elif self.camera_optimizer is not None and not self.camera_optimizer.frozen:
+            # the SDF was evaluated at points detached from the rays; to first order it moves with them by
+            # grad(sdf) . dx, which is how a corrected camera's rays see the surface (zero in value)
+            live = pack(samples.positions)
+            sdf = sdf + (gradients.detach() * (live - live.detach())).sum(-1, keepdim=True)
         directions = pack(samples.directions[:, None, :].expand(samples.positions.shape))
         true_cos = (directions * gradients).sum(-1)
         alpha = unpack(neus_alpha(sdf[..., 0], true_cos, pack(samples.deltas), self.variance.inv_s(),
