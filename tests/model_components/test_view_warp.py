@@ -45,7 +45,7 @@ def test_bilinear_reading_is_differentiable_in_the_position():
 
 
 def test_shift_grid_values_frozen_and_unknown_views_and_the_clamp():
-    module = _module(views=3, grid=3)
+    module = _module(views=3, grid=3, penalty_weight=1.0)
     with torch.no_grad():
         grids = module.correction.view(3, 2, 3, 3)
         grids[1, 0] = 0.01    # view 1: x shift 1% of the image side everywhere
