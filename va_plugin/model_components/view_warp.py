@@ -45,7 +45,7 @@ class ViewWarpConfig(InstantiateConfig):
     penalty_weight: float = 300.0
     """Weight of the mean squared shift (in fractions of the image side) in the loss. At 1 and 30 the
     warps took what the geometry should explain (CD +30% / +8% on GSO alarm at level 3); at 300 they stay
-    within about a pixel (benchmarks/RESULTS.md, "Per-view image warps")."""
+    within about a pixel and tie plain `neus` on GSO-10 (benchmarks/RESULTS.md, "Per-view image warps")."""
     start: float = 0.1
     """Share of the step budget before which the targets are read unwarped (the field first needs a shape)."""
 
