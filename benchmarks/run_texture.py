@@ -82,7 +82,7 @@ def run_mesh(pipeline, source: str, resolution: int):
 def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean"),
              reuse_field: bool = False, mesh_source: str = "extracted", mesh_resolution: int = 128) -> dict:
     pipeline, state = load_run(run, device="cpu")
-    record = {"run": str(run), "steps": int(state["step"]), "mesh": mesh_source}
+    record = {"run": str(run), "steps": int(state["step"]), "mesh": mesh_source, "texture_size": size}
     if mesh_source == "extracted":
         record["mesh_resolution"] = mesh_resolution
     started = time.perf_counter()
@@ -111,6 +111,14 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
     return record
 
 
+def resume_key(record: dict) -> tuple:
+    """What makes two records the same measurement: the run, the mesh (source and grid) and the texture size.
+    Records written before these were kept are read as the defaults of then (extracted, 128, 1024)."""
+    mesh = record.get("mesh", "extracted")
+    resolution = record.get("mesh_resolution", 128) if mesh == "extracted" else None
+    return record["run"], mesh, resolution, record.get("texture_size", 1024)
+
+
 def table(records) -> str:
     rows = ["| run | field PSNR / SSIM / LPIPS | mesh robust | mesh mean | robust better than field (LPIPS) |",
             "|---|---|---|---|---|"]
@@ -130,7 +138,8 @@ def table(records) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, nargs="+", required=True, help="run folders of va-train")
-    parser.add_argument("--out", type=Path, required=True, help="JSON lines, one per run (appended; done runs skipped)")
+    parser.add_argument("--out", type=Path, required=True, help="JSON lines, one per run and setting (appended; a run already scored with the same --mesh, "
+                        "--mesh-resolution and --texture-size is skipped)")
     parser.add_argument("--texture-size", type=int, default=1024)
     parser.add_argument("--max-views", type=int, default=None, help="score at most this many held-out views")
     parser.add_argument("--timing-views", type=int, default=16,
@@ -160,18 +169,20 @@ def main(argv=None) -> int:
     if args.out.exists():
         for line in args.out.read_text().splitlines():
             record = json.loads(line)
-            done[record["run"]] = record
+            done[resume_key(record)] = record
+    key = lambda run: resume_key({"run": str(run), "mesh": args.mesh, "mesh_resolution": args.mesh_resolution,  # noqa: E731
+                                  "texture_size": args.texture_size})
     for k, run in enumerate(args.runs):
-        if str(run) in done:
+        if key(run) in done:
             continue
         record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes,
                           args.reuse_field_scores, args.mesh, args.mesh_resolution)
-        done[str(run)] = record
+        done[key(run)] = record
         with args.out.open("a") as f:
             f.write(json.dumps(record) + "\n")
         print(f"{run.name}: field lpips {record['field']['lpips']:.4f}, mesh robust {record['robust']['lpips']:.4f}, "
               f"mean {record['mean']['lpips']:.4f}; bake {record['robust']['seconds']}", flush=True)
-    print(table([done[str(r)] for r in args.runs if str(r) in done]))
+    print(table([done[key(r)] for r in args.runs if key(r) in done]))
     return 0
 
 

@@ -31,6 +31,10 @@ def test_scores_field_and_both_fusions_and_resumes(run, tmp_path, capsys):
     assert "| median |" in table and run.name in table
     assert script.main(argv) == 0  # a finished run is not redone
     assert len(out.read_text().splitlines()) == 1
+    # the same run on another mesh grid is another measurement: scored and appended, not skipped as done
+    assert script.main(argv + ["--mesh-resolution", "32"]) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r.get("mesh_resolution") for r in records] == [128, 32]
     assert script.main(argv[:-7] + ["100", "--max-views", "1"]) == 2  # not a power of two: one line, exit 2
     assert script.main(argv[:-2] + ["--bakes", "median"]) == 2  # an unknown bake: one line, exit 2
 
