@@ -107,10 +107,11 @@ class DataManager:
             batch["normal"] = self.normals[views, rows, cols]
         return RayBundle(origins, directions, views), batch
 
-    def warped_targets(self, batch: Dict[str, torch.Tensor], shifts: torch.Tensor) -> Dict[str, torch.Tensor]:
-        """``batch`` with its targets read at ``pixel + shifts`` (``shifts [n, 2]``: columns, rows, in pixels;
-        bilinear, differentiable in the shifts) instead of at the pixels themselves."""
+    def warped_targets(self, batch: Dict[str, torch.Tensor], warp) -> Dict[str, torch.Tensor]:
+        """``batch`` with its targets read at ``pixel + shift`` instead of at the pixels themselves; ``warp``
+        (a :class:`ViewWarp`) gives the shifts (bilinear reading, differentiable in them)."""
         views, rows, cols = batch["pixel"].unbind(-1)
+        shifts = warp.shifts(views, rows, cols, self._height, self._width)  # columns, rows; pixels
         rows_f, cols_f = rows.to(shifts.dtype) + shifts[:, 1], cols.to(shifts.dtype) + shifts[:, 0]
         out = dict(batch)
         out["rgb"] = sample_bilinear(self.images, views, rows_f, cols_f)

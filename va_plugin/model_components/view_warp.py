@@ -88,12 +88,7 @@ class ViewWarp(PerViewCorrection):
         safe = torch.where(known, views, torch.zeros_like(views))
         gx = cols.to(torch.float32) * ((g - 1) / max(width - 1, 1))
         gy = rows.to(torch.float32) * ((g - 1) / max(height - 1, 1))
-        x0 = gx.floor().long().clamp(0, g - 2)
-        y0 = gy.floor().long().clamp(0, g - 2)
-        fx, fy = (gx - x0)[:, None], (gy - y0)[:, None]
-        grids = self._grids()
-        shift = ((1 - fx) * (1 - fy) * grids[safe, y0, x0] + fx * (1 - fy) * grids[safe, y0, x0 + 1]
-                 + (1 - fx) * fy * grids[safe, y0 + 1, x0] + fx * fy * grids[safe, y0 + 1, x0 + 1])
+        shift = sample_bilinear(self._grids(), safe, gy, gx)  # the grid is a G x G image of 2-D shifts
         return shift * known[:, None].to(shift.dtype) * float(max(height, width))
 
     @torch.no_grad()

@@ -46,9 +46,7 @@ class Pipeline(nn.Module):
             ray_bundle, batch = self.datamanager.next_train(step)
             warp = self.model.view_warp
             if warp is not None and warp.active:  # targets read where the view's learned warp says
-                views, rows, cols = batch["pixel"].unbind(-1)
-                height, width = self.datamanager.images.shape[1:3]
-                batch = self.datamanager.warped_targets(batch, warp.shifts(views, rows, cols, height, width))
+                batch = self.datamanager.warped_targets(batch, warp)
         with stage("rendering"):  # what the stages nested in the model's forward (sampling, ...) leave
             outputs = self.model.get_outputs(ray_bundle)
             loss_dict = self.model.get_loss_dict(outputs, batch)
