@@ -14,7 +14,7 @@ from va_plugin.data.dataparsers.base import DataParserConfig, DataparserOutputs
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
 from va_plugin.data.foreground import write_mask_picture
 from va_plugin.errors import DataError
-from va_plugin.model_components.view_warp import sample_bilinear
+from va_plugin.model_components.view_warp import gaussian_blurred, sample_bilinear, sample_bilinear_blur_slope
 from va_plugin.rays import RayBundle
 
 MASK_PICTURE = "masks.png"
@@ -58,6 +58,7 @@ class DataManager:
         self.generator = torch.Generator(device="cpu").manual_seed(config.seed)
         self._height, self._width = self.images.shape[1:3]
         self._foreground = self._foreground_pixels()
+        self._blurred: Dict[Tuple[str, float], torch.Tensor] = {}  # blurred inputs for view_warp.gradient_blur
         check_object_in_bound(self.train)
         warn_object_cut_by_frame(self.train)
 
@@ -113,12 +114,18 @@ class DataManager:
         views, rows, cols = batch["pixel"].unbind(-1)
         shifts = warp.shifts(views, rows, cols, self._height, self._width)  # columns, rows; pixels
         rows_f, cols_f = rows.to(shifts.dtype) + shifts[:, 1], cols.to(shifts.dtype) + shifts[:, 0]
+        sigma = warp.config.gradient_blur
         out = dict(batch)
-        out["rgb"] = sample_bilinear(self.images, views, rows_f, cols_f)
-        if self.masks is not None:
-            out["mask"] = sample_bilinear(self.masks, views, rows_f, cols_f)
-        if self.normals is not None:
-            out["normal"] = sample_bilinear(self.normals, views, rows_f, cols_f)
+        for key, images in (("rgb", self.images), ("mask", self.masks), ("normal", self.normals)):
+            if images is None:
+                continue
+            if sigma > 0:  # the slope from a blurred copy (made once per sigma), the values sharp
+                cache = (key, sigma)
+                if cache not in self._blurred:
+                    self._blurred[cache] = gaussian_blurred(images, sigma)
+                out[key] = sample_bilinear_blur_slope(images, self._blurred[cache], views, rows_f, cols_f)
+            else:
+                out[key] = sample_bilinear(images, views, rows_f, cols_f)
         return out
 
     def image_rays(self, outputs: DataparserOutputs, index: int, camera_index: Optional[int] = None

@@ -18,6 +18,7 @@ shared field has a shape to register the views against.
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+import math
 from typing import Dict, Tuple, Type
 
 import torch
@@ -48,6 +49,11 @@ class ViewWarpConfig(InstantiateConfig):
     within about a pixel and tie plain `neus` on GSO-10 (benchmarks/RESULTS.md, "Per-view image warps")."""
     start: float = 0.1
     """Share of the step budget before which the targets are read unwarped (the field first needs a shape)."""
+    gradient_blur: float = 0.0
+    """Standard deviation (pixels) of a Gaussian blur of the inputs from which the shift's slope is read,
+    while the values stay the sharp inputs' (0: the sharp inputs' own slope). A bilinear reading's slope
+    sees only the pixel cell around it, so the registration cannot see an error of a few pixels; the slope
+    of a blurred copy reaches about as far as its blur, the classic coarse registration step."""
 
 
 class ViewWarp(PerViewCorrection):
@@ -61,6 +67,8 @@ class ViewWarp(PerViewCorrection):
             raise ConfigError(f"view_warp.penalty_weight must be >= 0, got {config.penalty_weight}")
         if not 0.0 <= config.start < 1.0:
             raise ConfigError(f"view_warp.start must be in [0, 1), got {config.start}")
+        if not 0.0 <= config.gradient_blur <= 32.0:
+            raise ConfigError(f"view_warp.gradient_blur must be in [0, 32] pixels, got {config.gradient_blur}")
         super().__init__(num_views, 2 * config.grid * config.grid, config.frozen_views, config.penalty_weight)
         self.config = config
         self.active = config.start == 0.0
@@ -107,6 +115,29 @@ class ViewWarp(PerViewCorrection):
         return {"grid": self.config.grid, "image_side_px": self.image_side,
                 "rms_shift_px": [round(r, 4) for r in rms], "max_shift_px": [round(m, 4) for m in largest],
                 "largest_px": round(max(largest, default=0.0), 4)}
+
+
+def gaussian_blurred(images: torch.Tensor, sigma: float) -> torch.Tensor:
+    """``images [V, H, W, C]`` blurred by a separable Gaussian of ``sigma`` pixels (kernel radius 3 sigma,
+    the border replicated), as the same dtype and device."""
+    radius = max(1, int(math.ceil(3.0 * sigma)))
+    taps = torch.arange(-radius, radius + 1, dtype=torch.float32, device=images.device)
+    kernel = torch.exp(-0.5 * (taps / sigma) ** 2)
+    kernel = (kernel / kernel.sum()).to(images.dtype)
+    channels = images.shape[-1]
+    x = images.permute(0, 3, 1, 2)  # V, C, H, W
+    x = torch.nn.functional.pad(x, (radius, radius, radius, radius), mode="replicate")
+    x = torch.nn.functional.conv2d(x, kernel.view(1, 1, 1, -1).expand(channels, 1, 1, -1), groups=channels)
+    x = torch.nn.functional.conv2d(x, kernel.view(1, 1, -1, 1).expand(channels, 1, -1, 1), groups=channels)
+    return x.permute(0, 2, 3, 1).contiguous()
+
+
+def sample_bilinear_blur_slope(images: torch.Tensor, blurred: torch.Tensor, views: torch.Tensor,
+                               rows: torch.Tensor, cols: torch.Tensor) -> torch.Tensor:
+    """The values of ``images`` at ``(rows, cols)`` (as :func:`sample_bilinear`) with the slope in the
+    positions of ``blurred`` (straight through: ``sharp + blurred - blurred.detach()``)."""
+    soft = sample_bilinear(blurred, views, rows, cols)
+    return sample_bilinear(images, views, rows.detach(), cols.detach()) + soft - soft.detach()
 
 
 def sample_bilinear(images: torch.Tensor, views: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor
