@@ -16,7 +16,6 @@ RUN is a run folder of ``va-train neus --data SCENE --set pipeline.model.camera_
 
 from __future__ import annotations
 
-import argparse
 import json
 import math
 import sys
@@ -25,6 +24,7 @@ from typing import Any, Dict, List
 
 import torch
 
+from va_plugin.bench.recovery import recovery_main
 from va_plugin.errors import VAError
 
 
@@ -96,26 +96,17 @@ def recovery(run_dir: Path) -> Dict[str, Any]:
             "mean_left_deg": round(sum(v["left_deg"] for v in perturbed) / max(len(perturbed), 1), 3)}
 
 
+def show(result: Dict[str, Any]) -> None:
+    print(f"{result['scene']}: injected {result['mean_injected_deg']:.2f} deg on the mean, "
+          f"left {result['mean_left_deg']:.2f} deg ({result['run']})")
+    for v in result["views"]:
+        share = "-" if v["recovered"] is None else f"{v['recovered']:+.2f}"
+        print(f"  view {v['view']:2d}: injected {v['injected_deg']:.2f}, learned {v['learned_deg']:.2f}, "
+              f"left {v['left_deg']:.2f} deg, recovered {share}")
+
+
 def main(argv=None) -> int:
-    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("runs", nargs="+", type=Path, help="run folders")
-    parser.add_argument("--json", type=Path, default=None, help="also write the figures here")
-    args = parser.parse_args(argv)
-    try:
-        results = [recovery(run) for run in args.runs]
-    except (VAError, OSError, KeyError, json.JSONDecodeError) as exc:
-        print(f"error: {exc}", file=sys.stderr)
-        return 2
-    for result in results:
-        print(f"{result['scene']}: injected {result['mean_injected_deg']:.2f} deg on the mean, "
-              f"left {result['mean_left_deg']:.2f} deg ({result['run']})")
-        for v in result["views"]:
-            share = "-" if v["recovered"] is None else f"{v['recovered']:+.2f}"
-            print(f"  view {v['view']:2d}: injected {v['injected_deg']:.2f}, learned {v['learned_deg']:.2f}, "
-                  f"left {v['left_deg']:.2f} deg, recovered {share}")
-    if args.json is not None:
-        args.json.write_text(json.dumps(results, indent=2))
-    return 0
+    return recovery_main(__doc__.split("\n\n")[0], recovery, show, argv)
 
 
 if __name__ == "__main__":

@@ -1,0 +1,151 @@
+"""How much of a benchmark scene's injected image-space error a run's per-view image warps recovered.
+
+A GSO benchmark scene makes training view i by reading the clean render at ``coords_i(p)`` for each
+pixel ``p`` (the ``pose`` kind's map through the mesh's depth, composed with the ``geometric`` kind's
+smooth 2-D displacement; see ``GSOSource.perturbed``). The warp that undoes it reads the input at
+``p + s_i(p)`` with ``s_i(p) = coords_i^-1(p) - p``, about ``-(coords_i(p) - p)`` for errors of a few
+pixels: that is what ``pipeline.model.view_warp`` can learn. For each run and perturbed training view,
+over the view's object pixels (input mask > 0.5), this prints:
+
+- injected: RMS length of the ideal shift, pixels;
+- left: RMS length of (learned - ideal); "recovered" is ``1 - left / injected`` (1: exact, 0: no better
+  than no warp, below 0: worse than none);
+- floor: what the best shift grid of the run's size (least squares) would leave, the part of the error a
+  warp of that grid cannot express;
+- along: the learned shift's component along the ideal one, ``<s, t> / <t, t>`` (1: the right direction
+  and size; 0: unrelated).
+
+    python benchmarks/bench_warp_recovery.py RUN [RUN ...] [--json OUT.json]
+
+RUN is a run folder of ``va-train neus --data SCENE --set pipeline.model.view_warp.enabled=true`` (or a
+``run_backbone.py`` row) whose scene is a GSO benchmark scene with the ``geometric`` or ``pose`` kind.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Any, Dict, List
+
+import numpy as np
+import torch
+
+from va_plugin.bench.recovery import recovery_main
+from va_plugin.errors import VAError
+
+
+def ideal_shifts(scene_dir: Path, info: Dict[str, Any]) -> Dict[int, np.ndarray]:
+    """Rig view id -> the ideal shift ``[H, W, 2]`` (columns, rows; pixels) of each perturbed training view."""
+    from va_plugin.data.scenes.inconsistency import (InconsistencySpec, compose_maps, displacement_map,
+                                                     draw_perturbation, identity_map)
+    from va_plugin.data.rigs import RIG_DISTANCE
+    from va_plugin.data.scenes.rig import benchmark_cameras
+    from va_plugin.data.scenes.sources import load_source
+
+    if not str(info["source"]).startswith("gso:"):
+        raise VAError(f"{scene_dir}: source {info['source']} is not a GSO object (only image sources are warped "
+                      "in image space)")
+    inc = info["inconsistency"]
+    spec = InconsistencySpec(tuple(inc["kinds"]), int(inc["level"]), int(info["seed"]), tuple(inc["clean_views"]))
+    resolution = int(info["resolution"])
+    src = load_source(info["source"], resolution, Path(info["source_info"]["data_root"]))
+    cameras = benchmark_cameras(resolution, extra=src.renderable)
+    h = w = resolution
+    out = {}
+    for view in info["train_views"]:
+        if not spec.perturbs(view):
+            continue
+        p = draw_perturbation(spec, view)
+        coords = None
+        if p.orbit_deg is not None:
+            coords = src.pose_map(cameras, view, p.orbit_deg)
+        if p.displacement_2d is not None:
+            warp = displacement_map(p.displacement_2d, h, w, float(cameras.fx[view]) / RIG_DISTANCE)
+            coords = warp if coords is None else compose_maps(coords, warp)
+        if coords is not None:
+            out[int(view)] = -(coords - identity_map(h, w))
+    return out
+
+
+def bilinear_basis(grid: int, height: int, width: int, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
+    """``[n, grid * grid]`` weights of the control points at pixels ``(rows, cols)``, as ``ViewWarp.shifts``."""
+    gy = rows * ((grid - 1) / max(height - 1, 1))
+    gx = cols * ((grid - 1) / max(width - 1, 1))
+    r0 = np.clip(np.floor(gy).astype(int), 0, grid - 2)
+    c0 = np.clip(np.floor(gx).astype(int), 0, grid - 2)
+    fr, fc = gy - r0, gx - c0
+    basis = np.zeros((len(rows), grid * grid))
+    for dr, dc, weight in ((0, 0, (1 - fr) * (1 - fc)), (0, 1, (1 - fr) * fc), (1, 0, fr * (1 - fc)), (1, 1, fr * fc)):
+        np.add.at(basis, (np.arange(len(rows)), (r0 + dr) * grid + c0 + dc), weight)
+    return basis
+
+
+def recovery(run_dir: Path) -> Dict[str, Any]:
+    """Per perturbed training view of ``run_dir``: injected, learned-minus-ideal and floor RMS (pixels)."""
+    from va_plugin.data.images import read_image
+    from va_plugin.engine.trainer import load_checkpoint
+
+    run_dir = Path(run_dir)
+    if not (run_dir / "config.json").is_file():
+        raise VAError(f"{run_dir}: no config.json; not a va-train run folder")
+    state = load_checkpoint(run_dir, map_location="cpu")
+    config = state["config_object"]
+    warp_config = config.pipeline.model.view_warp
+    if not warp_config.enabled or "view_warp.correction" not in state["model"]:
+        raise VAError(f"{run_dir}: trained without pipeline.model.view_warp.enabled=true")
+    warp = warp_config.setup(num_views=state["model"]["view_warp.correction"].shape[0])
+    warp.load_state_dict({k[len("view_warp."):]: v for k, v in state["model"].items() if k.startswith("view_warp.")})
+    scene_dir = Path(config.pipeline.datamanager.dataparser.data)
+    if not (scene_dir / "scene.json").is_file():
+        raise VAError(f"{run_dir} was trained on {scene_dir}, which has no scene.json here: not a benchmark scene")
+    info = json.loads((scene_dir / "scene.json").read_text())
+    ideal = ideal_shifts(scene_dir, info)
+    frames = [f["file_path"] for f in json.loads((scene_dir / "transforms_train.json").read_text())["frames"]]
+    views: List[Dict[str, Any]] = []
+    for index, rig_id in enumerate(info["train_views"]):
+        if int(rig_id) not in ideal:
+            continue
+        target = ideal[int(rig_id)]
+        h, w = target.shape[:2]
+        rgba = read_image(scene_dir / frames[index])
+        rows, cols = np.nonzero(rgba[:, :, 3] > 0.5)
+        t = target[rows, cols].astype(np.float64)
+        with torch.no_grad():
+            s = warp.shifts(torch.full((len(rows),), index), torch.from_numpy(rows), torch.from_numpy(cols), h, w)
+        s = s.double().numpy()
+        basis = bilinear_basis(warp_config.grid, h, w, rows.astype(np.float64), cols.astype(np.float64))
+        best = basis @ np.linalg.lstsq(basis, t, rcond=None)[0]
+        rms = lambda x: float(np.sqrt((x ** 2).sum(-1).mean()))  # noqa: E731
+        injected, left = rms(t), rms(s - t)
+        views.append({"view": int(rig_id), "injected_px": round(injected, 3), "learned_px": round(rms(s), 3),
+                      "left_px": round(left, 3), "floor_px": round(rms(best - t), 3),
+                      "recovered": round(1.0 - left / max(injected, 1e-9), 3),
+                      "along": round(float((s * t).sum() / max((t * t).sum(), 1e-12)), 3),
+                      "along_x": round(float((s[:, 0] * t[:, 0]).sum() / max((t[:, 0] ** 2).sum(), 1e-12)), 3),
+                      "along_y": round(float((s[:, 1] * t[:, 1]).sum() / max((t[:, 1] ** 2).sum(), 1e-12)), 3),
+                      "injected_x_px": round(float(np.sqrt((t[:, 0] ** 2).mean())), 3),
+                      "injected_y_px": round(float(np.sqrt((t[:, 1] ** 2).mean())), 3)})
+    mean = lambda k: round(float(np.mean([v[k] for v in views])), 3) if views else None  # noqa: E731
+    return {"run": str(run_dir), "scene": scene_dir.name, "views": views,
+            **{f"mean_{k}": mean(k) for k in ("injected_px", "learned_px", "left_px", "floor_px", "along", "along_x",
+                                                  "along_y", "injected_x_px", "injected_y_px")}}
+
+
+def show(r: Dict[str, Any]) -> None:
+    print(f"{r['scene']}: injected {r['mean_injected_px']:.2f} px, learned {r['mean_learned_px']:.2f}, "
+          f"left {r['mean_left_px']:.2f}, floor {r['mean_floor_px']:.2f}, along {r['mean_along']:+.2f} "
+          f"(across the image {r['mean_along_x']:+.2f} of {r['mean_injected_x_px']:.2f} px, up it "
+          f"{r['mean_along_y']:+.2f} of {r['mean_injected_y_px']:.2f} px) ({r['run']})")
+    for v in r["views"]:
+        print(f"  view {v['view']:2d}: injected {v['injected_px']:.2f}, learned {v['learned_px']:.2f}, left "
+              f"{v['left_px']:.2f}, floor {v['floor_px']:.2f} px, recovered {v['recovered']:+.2f}, "
+              f"along {v['along']:+.2f}")
+
+
+def main(argv=None) -> int:
+    return recovery_main(__doc__.split("\n\n")[0], recovery, show, argv)
+
+
+if __name__ == "__main__":
+    sys.exit(main())
