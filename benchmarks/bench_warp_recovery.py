@@ -16,6 +16,12 @@ over the view's object pixels (input mask > 0.5), this prints:
   and size; 0: unrelated).
 
     python benchmarks/bench_warp_recovery.py RUN [RUN ...] [--json OUT.json]
+    python benchmarks/bench_warp_recovery.py --against-clean SCENE [SCENE ...] [--json OUT.json]
+
+With ``--against-clean`` the arguments are benchmark scene folders, and each perturbed training view is
+registered by a fresh warp (5x5 grid, no penalty, 300 Adam steps at lr 1e-3 on colour and alpha) against
+its own clean render (``images/clean_XXX.png``), the reference a perfectly consistent field would render:
+what the warp recovers when the reference is right, against which a run's figures read.
 
 RUN is a run folder of ``va-train neus --data SCENE --set pipeline.model.view_warp.enabled=true`` (or a
 ``run_backbone.py`` row) whose scene is a GSO benchmark scene with the ``geometric`` or ``pose`` kind.
@@ -83,7 +89,6 @@ def bilinear_basis(grid: int, height: int, width: int, rows: np.ndarray, cols: n
 
 def recovery(run_dir: Path) -> Dict[str, Any]:
     """Per perturbed training view of ``run_dir``: injected, learned-minus-ideal and floor RMS (pixels)."""
-    from va_plugin.data.images import read_image
     from va_plugin.engine.trainer import load_checkpoint
 
     run_dir = Path(run_dir)
@@ -101,20 +106,31 @@ def recovery(run_dir: Path) -> Dict[str, Any]:
         raise VAError(f"{run_dir} was trained on {scene_dir}, which has no scene.json here: not a benchmark scene")
     info = json.loads((scene_dir / "scene.json").read_text())
     ideal = ideal_shifts(scene_dir, info)
-    frames = [f["file_path"] for f in json.loads((scene_dir / "transforms_train.json").read_text())["frames"]]
+
+    def shifts_of(index, rows, cols, h, w):
+        with torch.no_grad():
+            return warp.shifts(torch.full((len(rows),), index), torch.from_numpy(rows), torch.from_numpy(cols),
+                               h, w).double().numpy()
+
+    return compare(str(run_dir), scene_dir, ideal, shifts_of, warp_config.grid, info["train_views"])
+
+
+def compare(run: str, scene_dir: Path, ideal: Dict[int, np.ndarray], shifts_of, grid: int,
+            views_in_order: List[int]) -> Dict[str, Any]:
+    """The figures of learned shifts ``shifts_of(index, rows, cols, h, w) -> [n, 2]`` against ``ideal``."""
+    from va_plugin.data.images import read_image
+
     views: List[Dict[str, Any]] = []
-    for index, rig_id in enumerate(info["train_views"]):
+    for index, rig_id in enumerate(views_in_order):
         if int(rig_id) not in ideal:
             continue
         target = ideal[int(rig_id)]
         h, w = target.shape[:2]
-        rgba = read_image(scene_dir / frames[index])
+        rgba = read_image(scene_dir / f"images/train_{int(rig_id):03d}.png")
         rows, cols = np.nonzero(rgba[:, :, 3] > 0.5)
         t = target[rows, cols].astype(np.float64)
-        with torch.no_grad():
-            s = warp.shifts(torch.full((len(rows),), index), torch.from_numpy(rows), torch.from_numpy(cols), h, w)
-        s = s.double().numpy()
-        basis = bilinear_basis(warp_config.grid, h, w, rows.astype(np.float64), cols.astype(np.float64))
+        s = shifts_of(index, rows, cols, h, w)
+        basis = bilinear_basis(grid, h, w, rows.astype(np.float64), cols.astype(np.float64))
         best = basis @ np.linalg.lstsq(basis, t, rcond=None)[0]
         rms = lambda x: float(np.sqrt((x ** 2).sum(-1).mean()))  # noqa: E731
         injected, left = rms(t), rms(s - t)
@@ -127,9 +143,48 @@ def recovery(run_dir: Path) -> Dict[str, Any]:
                       "injected_x_px": round(float(np.sqrt((t[:, 0] ** 2).mean())), 3),
                       "injected_y_px": round(float(np.sqrt((t[:, 1] ** 2).mean())), 3)})
     mean = lambda k: round(float(np.mean([v[k] for v in views])), 3) if views else None  # noqa: E731
-    return {"run": str(run_dir), "scene": scene_dir.name, "views": views,
+    return {"run": run, "scene": scene_dir.name, "views": views,
             **{f"mean_{k}": mean(k) for k in ("injected_px", "learned_px", "left_px", "floor_px", "along", "along_x",
                                                   "along_y", "injected_x_px", "injected_y_px")}}
+
+
+def register_against_clean(scene_dir: Path, grid: int = 5, steps: int = 300) -> Dict[str, Any]:
+    """Each perturbed training view of a benchmark scene registered by a fresh warp against its clean render."""
+    from va_plugin.data.images import read_image
+    from va_plugin.model_components.view_warp import ViewWarpConfig, sample_bilinear
+
+    scene_dir = Path(scene_dir)
+    if not (scene_dir / "scene.json").is_file():
+        raise VAError(f"{scene_dir}: no scene.json; not a benchmark scene folder")
+    info = json.loads((scene_dir / "scene.json").read_text())
+    ideal = ideal_shifts(scene_dir, info)
+    learned: Dict[int, Any] = {}
+    for index, rig_id in enumerate(info["train_views"]):
+        if int(rig_id) not in ideal:
+            continue
+        warp = ViewWarpConfig(enabled=True, grid=grid, penalty_weight=0.0, frozen_views=()).setup(num_views=1)
+        image = torch.from_numpy(read_image(scene_dir / f"images/train_{int(rig_id):03d}.png"))[None]
+        clean = torch.from_numpy(read_image(scene_dir / f"images/clean_{int(rig_id):03d}.png"))
+        h, w = clean.shape[:2]
+        seen = ((clean[..., 3] > 0.05) | (image[0, ..., 3] > 0.05)).reshape(-1)
+        rows, cols = (x.reshape(-1)[seen] for x in torch.meshgrid(torch.arange(h), torch.arange(w), indexing="ij"))
+        views = torch.zeros_like(rows)
+        target = clean.reshape(-1, clean.shape[-1])[seen]
+        optimizer = torch.optim.Adam(warp.parameters(), lr=1e-3)
+        for _ in range(steps):
+            shift = warp.shifts(views, rows, cols, h, w)
+            loss = ((sample_bilinear(image, views, rows + shift[:, 1], cols + shift[:, 0]) - target) ** 2).mean()
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+        learned[index] = warp
+
+    def shifts_of(index, rows, cols, h, w):
+        with torch.no_grad():
+            return learned[index].shifts(torch.zeros(len(rows), dtype=torch.long), torch.from_numpy(rows),
+                                         torch.from_numpy(cols), h, w).double().numpy()
+
+    return compare(f"{scene_dir} against its clean renders", scene_dir, ideal, shifts_of, grid, info["train_views"])
 
 
 def show(r: Dict[str, Any]) -> None:
@@ -144,6 +199,10 @@ def show(r: Dict[str, Any]) -> None:
 
 
 def main(argv=None) -> int:
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if "--against-clean" in argv:
+        argv.remove("--against-clean")
+        return recovery_main(__doc__.split("\n\n")[0], register_against_clean, show, argv)
     return recovery_main(__doc__.split("\n\n")[0], recovery, show, argv)
 
 

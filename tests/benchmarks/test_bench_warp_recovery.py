@@ -57,6 +57,9 @@ def test_the_ideal_shift_undoes_the_injected_warp_and_pose(recovery, tmp_path):
         error = lambda image: float(np.abs(image[..., 3] - clean[..., 3]).mean())  # noqa: E731  silhouettes
         assert np.sqrt((shift ** 2).sum(-1)).mean() > 0.8  # level 3 moves a 128-px view by one to two pixels
         assert error(undone) < 0.6 * error(plain), (view, error(undone), error(plain))
+    # a fresh warp registered against the clean renders finds much of the ideal shift
+    registered = recovery.register_against_clean(scene)
+    assert registered["mean_along"] > 0.5 and registered["mean_left_px"] < 0.8 * registered["mean_injected_px"], registered
 
 
 def test_a_folder_that_is_not_a_warp_run_is_one_error_line(recovery, tmp_path, capsys):
