@@ -195,3 +195,24 @@ def test_training_warps_the_targets_of_unfrozen_views_only(method, tiny_scene, t
     plain = tiny_config(method, tiny_scene, tmp_path / "plain").setup()
     assert plain.model.view_warp is None and not any("warp" in k for k in plain.model.state_dict())
     assert "view_warp" not in plain.pipeline.train_step(0)[0]
+
+
+def test_datamanager_reads_sharp_values_with_the_blurred_slope(tiny_scene, tmp_path):
+    """``gradient_blur``: the warped targets keep the sharp inputs' values; the shift's gradient changes."""
+    grads, values = [], []
+    for sigma in (0.0, 2.0):
+        torch.manual_seed(0)
+        config = tiny_config("neus", tiny_scene, tmp_path / f"run{sigma}", steps=4,
+                             **{"pipeline.model.view_warp.enabled": True, "pipeline.model.view_warp.start": 0.0,
+                                "pipeline.model.view_warp.gradient_blur": sigma})
+        pipeline = config.setup().pipeline
+        warp, datamanager = pipeline.model.view_warp, pipeline.datamanager
+        with torch.no_grad():
+            warp.correction.fill_(0.01)
+        _, batch = datamanager.next_train(0)
+        out = datamanager.warped_targets(batch, warp)
+        (out["rgb"].sum() + out["mask"].sum()).backward()
+        grads.append(warp.correction.grad.clone())
+        values.append(torch.cat([out["rgb"], out["mask"]], -1).detach())
+    assert torch.allclose(values[0], values[1])
+    assert torch.isfinite(grads[1]).all() and not torch.allclose(grads[0], grads[1])
