@@ -6,7 +6,8 @@
 Each run is the user's command, ``va-train METHOD --data FILE --export-mesh``, with default options,
 trained in this process by ``train_run`` as va-train trains it (format detected, the generator's documented rig). There is no ground truth for generated views, so what
 is recorded is the run time, the last training batch's PSNR (against the generator's own views), the
-rig check (silhouette IoU of the masks' visual hull) and, for ``va-neus``, whether the consistency test
+PSNR of the shared path (the novel-view render the mesh comes from) at the training views against the
+inputs (half size, cached in ``RUN/train_views_psnr.json``), the rig check (silhouette IoU of the masks' visual hull) and, for ``va-neus``, whether the consistency test
 ran the adaptive phases and the mean inconsistency per view. Writes into OUT:
 
 - ``runs/<input>-<method>/``: the run folders (mesh.ply, masks.png, inconsistency.png, attention.png);
@@ -100,6 +101,38 @@ def run_one(method: str, source: Path, run_dir: Path, args) -> float:
     return time.perf_counter() - start
 
 
+def shared_path_psnr(run_dir: Path, scale: float = 0.5):
+    """Mean PSNR of the run's shared (novel-view) path rendered at its training views against the inputs,
+    at ``scale`` of their size (area-resized targets): for ``va-neus`` the object the mesh comes from, not
+    a branch. Cached in ``RUN/train_views_psnr.json``; None when the run has no checkpoint."""
+    import cv2
+    import torch
+
+    from va_plugin.cli.run import load_run
+    from va_plugin.engine.trainer import list_checkpoints
+    from va_plugin.eval.image import psnr
+    from va_plugin.export.render import render_view
+
+    cache = run_dir / "train_views_psnr.json"
+    if cache.is_file():
+        return json.loads(cache.read_text())["mean_psnr"]
+    if not list_checkpoints(run_dir):
+        return None
+    pipeline, _ = load_run(run_dir, device="cpu")
+    datamanager = pipeline.datamanager
+    cameras = datamanager.cameras.scaled(scale)
+    values = []
+    with torch.no_grad():
+        for view in range(datamanager.num_train_views):
+            render = render_view(pipeline.model, cameras, view)
+            target = cv2.resize(datamanager.images[view].cpu().numpy(), (cameras.width, cameras.height),
+                                interpolation=cv2.INTER_AREA)
+            values.append(psnr(render, target))
+    mean = round(sum(values) / len(values), 2)
+    cache.write_text(json.dumps({"scale": scale, "per_view_psnr": [round(v, 2) for v in values], "mean_psnr": mean}))
+    return mean
+
+
 def rig_check(source: Path) -> dict:
     """The dataparser's own rig check for one input: per-view silhouette IoU of the masks' visual hull."""
     from va_plugin.data.dataparsers import resolve_dataparser
@@ -175,14 +208,16 @@ def inconsistency_figure(runs, out: Path, tile: int = 96):
 
 def write_tables(rows, out: Path) -> None:
     (out / "generated.json").write_text(json.dumps(rows, indent=2))
-    lines = ["| input | method | steps | wall s | train PSNR | silhouette IoU | per-view PSNR spread after "
-             "phase 1 (dB) | adaptive phases | inconsistency per view |", "|---|---|---|---|---|---|---|---|---|"]
+    lines = ["| input | method | steps | wall s | train PSNR | shared path on the inputs | silhouette IoU | per-view "
+             "PSNR spread after phase 1 (dB) | adaptive phases | inconsistency per view |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         iou = (f"{r['silhouette_iou_mean']:.3f} / {r['silhouette_iou_min']:.3f}"
                if "silhouette_iou_mean" in r else "")
         inc = ", ".join(f"{v:.2g}" for v in r["inconsistency"]) if r.get("inconsistency") else ""
         lines.append(f"| {r['input']} | {r['method']} | {r.get('steps', '')} | {r['wall_seconds']:.0f} | "
-                     f"{r.get('train_psnr', float('nan')):.2f} | {iou} | {r.get('residual_spread_db', '')} | "
+                     f"{r.get('train_psnr', float('nan')):.2f} | {r.get('shared_path_psnr') or ''} | {iou} | "
+                     f"{r.get('residual_spread_db', '')} | "
                      f"{r.get('adaptive_phases', '')} | {inc} |")
     (out / "generated.md").write_text("\n".join(lines) + "\n")
 
@@ -251,6 +286,7 @@ def main(argv=None) -> int:
         if (run_dir / "view_residuals.json").is_file():  # the consistent-scene test's measurement
             views = json.loads((run_dir / "view_residuals.json").read_text())["views"]
             row["residual_spread_db"] = round(residual_spread_db(views), 2)
+        row["shared_path_psnr"] = shared_path_psnr(run_dir)
     write_tables(rows, args.out)
     figure = summary_figure(inputs, methods, args.out)
     if figure is not None:

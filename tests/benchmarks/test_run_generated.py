@@ -51,3 +51,17 @@ def test_inconsistency_summary_keeps_small_values_and_the_table_shows_them(gen, 
     assert len(table) == 3 and table[0].count("|") == table[2].count("|")
     assert "2.9e-05" in table[2] and "0.900 / 0.850" in table[2] and "| 1.2 |" in table[2]
     assert json.loads((tmp_path / "generated.json").read_text()) == rows
+
+
+def test_shared_path_psnr_renders_the_training_views_and_caches(gen, tiny_scene, tmp_path):
+    from conftest import tiny_config
+
+    assert gen.shared_path_psnr(tmp_path) is None  # no checkpoint: nothing to render
+    run = tmp_path / "run"
+    tiny_config("va-neus", tiny_scene, run, steps=2).setup().train()
+    value = gen.shared_path_psnr(run)
+    cached = json.loads((run / "train_views_psnr.json").read_text())
+    assert 0.0 < value < 60.0 and cached["mean_psnr"] == value and len(cached["per_view_psnr"]) == 4
+    cached["mean_psnr"] = 99.0  # a second call reads the cache instead of rendering again
+    (run / "train_views_psnr.json").write_text(json.dumps(cached))
+    assert gen.shared_path_psnr(run) == 99.0
