@@ -376,3 +376,34 @@ def test_a_trained_backbone_state_starts_its_adaptive_model(tiny_scene, tmp_path
     wrapped.model.load_state_dict(target)
     for key, value in plain.model.field.state_dict().items():
         assert torch.equal(wrapped.model.field.base.state_dict()[key], value), key
+
+
+@pytest.mark.parametrize("reach", [False, True])
+def test_the_regularizers_reshape_the_shared_field_only_when_asked(reach, tiny_scene, tmp_path):
+    """By default L_entropy and L_consistency train the branches and the attention only: on a real output
+    their gradient on the shared field dissolved the surface at phase 3's start. With
+    ``regularizers_reach_shared`` they reach it as in the paper's joint loss."""
+    trainer = _trainer("va-neus", tiny_scene, tmp_path / "run",
+                       **{"pipeline.model.field.regularizers_reach_shared": str(reach).lower()})
+    model, field = trainer.model, trainer.model.field
+    for _ in range(6):
+        _run_step(trainer)
+    field.set_phase(FUSION)
+    with torch.no_grad():  # branches that disagree, as after phase 2, so the consistency term is not zero
+        for p in field.branches.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    ray_bundle, batch = trainer.pipeline.datamanager.next_train(6)
+    losses = model.get_loss_dict(model.get_outputs(ray_bundle), batch)
+    assert losses["consistency"] > 0
+    shared = [p for p in field.base.parameters()]
+    adaptive = list(field.branches.parameters()) + list(field.attention.parameters())
+    for name in ("consistency", "entropy"):
+        to_shared = torch.autograd.grad(losses[name], shared, retain_graph=True, allow_unused=True)
+        to_adaptive = torch.autograd.grad(losses[name], adaptive, retain_graph=True, allow_unused=True)
+        reaches = any(g is not None and bool(g.abs().sum() > 0) for g in to_shared)
+        assert reaches == reach, name
+        if name == "consistency":
+            assert any(g is not None and bool(g.abs().sum() > 0) for g in to_adaptive)
+    # the colour loss still trains the shared field through the same fused samples
+    to_shared = torch.autograd.grad(losses["rgb"], shared, retain_graph=True, allow_unused=True)
+    assert any(g is not None and bool(g.abs().sum() > 0) for g in to_shared)

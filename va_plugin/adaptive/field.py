@@ -76,6 +76,13 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     """Samples whose rendering weight is at most this skip the branches and the attention and keep the
     shared colour (0: every sample takes the adaptive path). Such a sample changes its pixel by at most
     this fraction of the colour difference, and a ray's weights mostly sit on a few samples."""
+    regularizers_reach_shared: bool = False
+    """Let L_entropy and L_consistency (eq. 14) reshape the shared field too, as the paper's joint loss does.
+    Off: they train the branches and the attention only (the shared features enter them detached; one more
+    branch and attention pass on the fused samples). Measured on a real SyncDreamer output (aircraft_0):
+    at the start of phase 3 the branches' features differ by far more than their colours do, and the
+    consistency term's gradient on the shared field was 25x the colour loss's: within 20 steps the SDF
+    dissolved (inv_s 183 -> 1.4, training PSNR 25 -> 10; benchmarks/RESULTS.md)."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
     (every view's branch plus the attention); its other visible samples use their own view's branch,
@@ -304,10 +311,14 @@ class ViewAdaptiveField(Field):
         if mode.also_canonical and not mode.canonical_shared:
             out["rgb_canonical"] = self.base.decode_color(canonical)
         if mode.fusion and mode.training:
+            reg_tokens, reg_alpha = tokens, alpha
+            if not self.config.regularizers_reach_shared and (self.config.entropy_weight > 0
+                                                              or self.config.consistency_weight > 0):
+                reg_tokens, reg_alpha = self.attention(self.branches.forward_all(flat.detach()))
             if self.config.entropy_weight > 0:
-                out["va_entropy"] = attention_entropy(alpha)
+                out["va_entropy"] = attention_entropy(reg_alpha)
             if self.config.consistency_weight > 0:
-                out["va_consistency"] = feature_consistency(tokens)
+                out["va_consistency"] = feature_consistency(reg_tokens)
             out["va_attention"] = alpha.detach().mean(1)  # [S, n, n], over the heads
             if weights is not None:
                 out["va_attention_weights"] = weights.detach()
