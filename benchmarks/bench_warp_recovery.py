@@ -43,9 +43,7 @@ from va_plugin.errors import VAError
 
 def ideal_shifts(scene_dir: Path, info: Dict[str, Any]) -> Dict[int, np.ndarray]:
     """Rig view id -> the ideal shift ``[H, W, 2]`` (columns, rows; pixels) of each perturbed training view."""
-    from va_plugin.data.scenes.inconsistency import (InconsistencySpec, compose_maps, displacement_map,
-                                                     draw_perturbation, identity_map)
-    from va_plugin.data.rigs import RIG_DISTANCE
+    from va_plugin.data.scenes.inconsistency import InconsistencySpec, draw_perturbation, identity_map
     from va_plugin.data.scenes.rig import benchmark_cameras
     from va_plugin.data.scenes.sources import load_source
 
@@ -57,20 +55,13 @@ def ideal_shifts(scene_dir: Path, info: Dict[str, Any]) -> Dict[int, np.ndarray]
     resolution = int(info["resolution"])
     src = load_source(info["source"], resolution, Path(info["source_info"]["data_root"]))
     cameras = benchmark_cameras(resolution, extra=src.renderable)
-    h = w = resolution
     out = {}
     for view in info["train_views"]:
         if not spec.perturbs(view):
             continue
-        p = draw_perturbation(spec, view)
-        coords = None
-        if p.orbit_deg is not None:
-            coords = src.pose_map(cameras, view, p.orbit_deg)
-        if p.displacement_2d is not None:
-            warp = displacement_map(p.displacement_2d, h, w, float(cameras.fx[view]) / RIG_DISTANCE)
-            coords = warp if coords is None else compose_maps(coords, warp)
+        coords = src.sampling_map(cameras, view, draw_perturbation(spec, view))
         if coords is not None:
-            out[int(view)] = -(coords - identity_map(h, w))
+            out[int(view)] = -(coords - identity_map(resolution, resolution))
     return out
 
 

@@ -120,10 +120,10 @@ class ViewWarp(PerViewCorrection):
 def gaussian_blurred(images: torch.Tensor, sigma: float) -> torch.Tensor:
     """``images [V, H, W, C]`` blurred by a separable Gaussian of ``sigma`` pixels (kernel radius 3 sigma,
     the border replicated), as the same dtype and device."""
+    from va_plugin.eval.image import gaussian_kernel_1d  # SSIM's taps; made once per sigma, off the hot path
+
     radius = max(1, int(math.ceil(3.0 * sigma)))
-    taps = torch.arange(-radius, radius + 1, dtype=torch.float32, device=images.device)
-    kernel = torch.exp(-0.5 * (taps / sigma) ** 2)
-    kernel = (kernel / kernel.sum()).to(images.dtype)
+    kernel = gaussian_kernel_1d(2 * radius + 1, sigma).to(device=images.device, dtype=images.dtype)
     channels = images.shape[-1]
     x = images.permute(0, 3, 1, 2)  # V, C, H, W
     x = torch.nn.functional.pad(x, (radius, radius, radius, radius), mode="replicate")

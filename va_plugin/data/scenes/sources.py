@@ -133,15 +133,20 @@ class ImageSource(SceneSource):
         uv, _ = cameras.project(points, view)
         return uv.numpy().reshape(camera.height, camera.width, 2)
 
-    def perturbed(self, cameras: Cameras, view: int, p: ViewPerturbation) -> np.ndarray:
-        h, w = cameras.height, cameras.width
+    def sampling_map(self, cameras: Cameras, view: int, p: ViewPerturbation) -> Optional[np.ndarray]:
+        """Where each pixel of the perturbed view reads the clean render ``[H, W, 2]`` (the orbit error's
+        map composed with the 2-D warp), or None when ``p`` moves nothing."""
         coords = None
         if p.orbit_deg is not None:
             coords = self.pose_map(cameras, view, p.orbit_deg)
         if p.displacement_2d is not None:
             pixels_per_unit = float(cameras.fx[view]) / RIG_DISTANCE
-            warp = displacement_map(p.displacement_2d, h, w, pixels_per_unit)
+            warp = displacement_map(p.displacement_2d, cameras.height, cameras.width, pixels_per_unit)
             coords = warp if coords is None else compose_maps(coords, warp)
+        return coords
+
+    def perturbed(self, cameras: Cameras, view: int, p: ViewPerturbation) -> np.ndarray:
+        coords = self.sampling_map(cameras, view, p)
         image = self.images[view] if coords is None else remap_rgba(self.images[view], coords)
         return apply_appearance(image, p)
 
