@@ -126,7 +126,7 @@ _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
     "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",
     "mesh_smoothing", "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "min_sample_weight",
     "n_importance",
-    "num_threads", "sdf_layers", "shared_lr_scale", "spike_factor", "spike_floor", "start_levels",
+    "num_threads", "sdf_layers", "shared_lr_scale", "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels",
     "threshold", "up_sample_steps", "warmup_steps", "weight_decay"})
 _UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "train_until"})
 

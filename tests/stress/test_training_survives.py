@@ -203,14 +203,52 @@ def test_a_hopeless_run_stops_also_when_inv_s_collapses_without_nan(tiny_scene, 
 def test_collapsed_saturated_or_nan_inv_s_is_rolled_back():
     guard = TrainingGuard(HealthConfig(), inv_s_start=20.0)
     params = [torch.ones(3)]
-    assert guard.check_parameters(params, inv_s=0.5) == "ok"  # diverging, but not collapsed: warned only
-    assert guard.check_parameters(params, inv_s=0.19) == "restore" and "collapsed" in guard.reason
+    assert guard.check_parameters(params, inv_s=1.5) == "ok"  # diverging, but not collapsed: warned only
+    assert guard.check_parameters(params, inv_s=0.9) == "restore" and "collapsed" in guard.reason  # < 5% of 20
     assert guard.check_parameters(params, inv_s=float("nan")) == "restore"
     assert guard.check_parameters(params, inv_s=None) == "ok"  # models without inv_s
     assert guard.check_parameters(params, inv_s=5e4) == "ok"
     assert guard.check_parameters(params, inv_s=1e6) == "restore" and "shot up" in guard.reason
     off = TrainingGuard(HealthConfig(inv_s_collapse=0.0, inv_s_saturation=0.0), inv_s_start=20.0)
     assert off.check_parameters(params, inv_s=1e-6) == "ok" and off.check_parameters(params, inv_s=1e6) == "ok"
+
+
+def test_a_collapse_is_measured_from_the_peak_and_rolls_back_to_a_state_from_before_the_fall():
+    """The real SyncDreamer aircraft_0 under the joint regularizers: inv_s 195 -> 25 -> 1.0 in 50 steps, every
+    value finite. Measured from the start value (20) that was no collapse; from the run's peak it is. And the
+    state it rolls back to must predate the fall: no snapshot is refreshed while inv_s is under half its peak."""
+    model = torch.nn.Linear(2, 1, bias=False)
+    optimizer = torch.optim.SGD(model.parameters(), lr=0.1)
+    guard = TrainingGuard(HealthConfig(snapshot_every=1), inv_s_start=20.0)
+    params = list(model.parameters())
+    trajectory = [(0, 60.0), (1, 195.0), (2, 120.0), (3, 80.0), (4, 25.0)]  # (step, inv_s after its update)
+    for step, inv_s in trajectory:
+        with torch.no_grad():
+            model.weight.fill_(float(step))  # the parameters a snapshot at this step holds
+        guard.maybe_snapshot(step, model, optimizer)
+        assert guard.check_parameters(params, inv_s=inv_s) == "ok"  # 25 is 0.13 of the peak: a healthy dip
+    assert guard.inv_s_peak == 195.0
+    with torch.no_grad():
+        model.weight.fill_(5.0)
+    guard.maybe_snapshot(5, model, optimizer)
+    assert guard.check_parameters(params, inv_s=1.0) == "restore"  # 1.0 < 0.05 * 195, though above 0.05 * 20
+    assert "reached 195" in guard.reason
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        guard.restore(6, model, optimizer)
+    # steps 3-5 ran with inv_s under half its peak (80, 25): the state restored is step 3's, taken while
+    # step 2's update had left inv_s at 120 (0.62 of the peak)
+    assert torch.equal(model.weight, torch.full((1, 2), 3.0))
+    guard.check_parameters(params, inv_s=62.0)  # the joint loss thins the surface again after the rollback
+    assert "0.32 of its peak 195" in guard.summary()
+    always = TrainingGuard(HealthConfig(snapshot_every=1, snapshot_inv_s_fraction=0.0), inv_s_start=20.0)
+    always.check_parameters(params, inv_s=195.0)
+    always.check_parameters(params, inv_s=25.0)
+    always.maybe_snapshot(7, model, optimizer)
+    assert always._snapshot["step"] == 7
+    restored = TrainingGuard(HealthConfig(), inv_s_start=20.0)
+    restored.load_state_dict(guard.state_dict())  # kept in checkpoints: a resumed run judges alike
+    assert restored.inv_s_peak == 195.0 and restored.check_parameters(params, inv_s=9.0) == "restore"
 
 
 def test_an_inv_s_dip_during_the_warm_up_is_not_a_divergence_warning():
