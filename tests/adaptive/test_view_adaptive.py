@@ -407,3 +407,38 @@ def test_the_regularizers_reshape_the_shared_field_only_when_asked(reach, tiny_s
     # the colour loss still trains the shared field through the same fused samples
     to_shared = torch.autograd.grad(losses["rgb"], shared, retain_graph=True, allow_unused=True)
     assert any(g is not None and bool(g.abs().sum() > 0) for g in to_shared)
+
+
+@pytest.mark.parametrize("method", ["va-neus", "va-ngp"])
+def test_the_shared_colour_loss_renders_the_shared_path_of_the_training_rays(method, tiny_scene, tmp_path):
+    """``shared_colour_weight``: in phases 2-3 the shared path's render of the same training rays (f_shared
+    decoded, what novel views use) meets the inputs too. Phase 1 has no such term (its colour already is
+    the shared one); off, the loss is the paper's. The term equals the model's colour loss on a render of
+    the batch with the branches switched off, times its weight."""
+    weight = 0.5
+    trainer = _trainer(method, tiny_scene, tmp_path / "run", **{"pipeline.model.field.shared_colour_weight": weight})
+    model, field = trainer.model, trainer.model.field
+    ray_bundle, batch = trainer.pipeline.datamanager.next_train(6)
+    assert "shared_rgb" not in model.get_loss_dict(model.get_outputs(ray_bundle), batch)  # phase 1
+    for phase in (BRANCHES, FUSION):
+        field.set_phase(phase)
+        with torch.no_grad():  # branches that disagree, as after phase 2
+            for p in field.branches.parameters():
+                p.add_(0.05 * torch.randn_like(p))
+        torch.manual_seed(0)
+        outputs = model.get_outputs(ray_bundle)
+        losses = model.get_loss_dict(outputs, batch)
+        assert "shared_rgb" in losses and not torch.allclose(outputs["rgb_shared"], outputs["rgb"])
+        field.set_phase(PRETRAIN)  # the backbone's own render of the same rays
+        torch.manual_seed(0)
+        plain = model.get_outputs(ray_bundle)["rgb"]
+        field.set_phase(phase)
+        assert torch.allclose(outputs["rgb_shared"], plain, atol=1e-5)
+        expected = weight * model.colour_loss(plain, batch["rgb"])
+        assert torch.allclose(losses["shared_rgb"], expected, atol=1e-6)
+        shared = list(field.base.parameters())
+        grads = torch.autograd.grad(losses["shared_rgb"], shared, allow_unused=True)
+        assert any(g is not None and bool(g.abs().sum() > 0) for g in grads)
+    off = _trainer(method, tiny_scene, tmp_path / "off")
+    off.model.field.set_phase(FUSION)
+    assert "shared_rgb" not in off.model.get_loss_dict(off.model.get_outputs(ray_bundle), batch)

@@ -18,7 +18,7 @@ The field knows nothing about training steps: it holds a phase flag (1 pre-train
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Type
+from typing import Callable, Dict, List, Optional, Type
 
 import torch
 from torch import nn
@@ -83,6 +83,12 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     at the start of phase 3 the branches' features differ by far more than their colours do, and the
     consistency term's gradient on the shared field was 25x the colour loss's: within 20 steps the SDF
     dissolved (inv_s 183 -> 1.4, training PSNR 25 -> 10; benchmarks/RESULTS.md)."""
+    shared_colour_weight: float = 0.0
+    """Weight of a second colour loss, on the shared path's render of the same training rays (f_shared
+    decoded, composited with the same weights: what a novel view and the mesh colours use), while the
+    branches are active (phases 2-3). 0: the paper's loss, in which only the branch and fused colours meet
+    the inputs and f_shared is trained through them. The shared colours of the batch's samples are decoded
+    anyway, so it costs one more compositing of the batch."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
     (every view's branch plus the attention); its other visible samples use their own view's branch,
@@ -257,13 +263,18 @@ class ViewAdaptiveField(Field):
         return ColorMode(branches=self.branches_active(), fusion=self.fusion_active(), training=self.training,
                          canonical_shared=cfg.canonical == "shared", also_canonical=self.also_canonical,
                          min_sample_weight=cfg.min_sample_weight,
-                         fused_samples_per_ray=cfg.fused_samples_per_ray if self.fusion_active() else 0)
+                         fused_samples_per_ray=cfg.fused_samples_per_ray if self.fusion_active() else 0,
+                         shared_colour=self.training and cfg.shared_colour_weight > 0)
 
     def _every_sample(self, flat: torch.Tensor, views: torch.Tensor, mode: "ColorMode") -> Dict[str, torch.Tensor]:
         """Every sample ``[S, D]`` takes the adaptive path (no rendering weights, or no culling)."""
         out = self._adaptive(flat, views, None, mode)
-        if mode.also_canonical and mode.canonical_shared:
-            out["rgb_canonical"] = self.base.decode_color(flat)
+        if (mode.also_canonical and mode.canonical_shared) or mode.shared_colour:
+            shared_rgb = self.base.decode_color(flat)
+            if mode.also_canonical and mode.canonical_shared:
+                out["rgb_canonical"] = shared_rgb
+            if mode.shared_colour:
+                out["rgb_shared"] = shared_rgb
         return out
 
     def _routed(self, flat: torch.Tensor, views: torch.Tensor, weights: torch.Tensor, routes: "SampleRoutes",
@@ -278,6 +289,8 @@ class ViewAdaptiveField(Field):
             own = routes.own_only
             rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(flat[own], views[own])))
         out = {"rgb": rgb}
+        if mode.shared_colour:
+            out["rgb_shared"] = base_rgb
         if "rgb_canonical" in sub:
             out["rgb_canonical"] = base_rgb.index_copy(0, index, sub.pop("rgb_canonical"))
         elif mode.also_canonical and mode.canonical_shared:
@@ -325,9 +338,13 @@ class ViewAdaptiveField(Field):
         return out
 
     # -- losses and diagnostics -------------------------------------------------------------------
-    def extra_losses(self, outputs: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
+    def extra_losses(self, outputs: Dict[str, torch.Tensor], batch: Optional[Dict[str, torch.Tensor]] = None,
+                     colour_loss: Optional[Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = None
+                     ) -> Dict[str, torch.Tensor]:
         """The weighted regularizers of eq. 14, averaged over samples by their rendering weights; the
-        attention of the batch (``va_attention``) joins the running attention matrix."""
+        attention of the batch (``va_attention``) joins the running attention matrix. With
+        ``shared_colour_weight`` and the model's ``colour_loss``, the shared path's render of the batch
+        (``rgb_shared``) against the batch's colours (``shared_rgb``)."""
         cfg = self.config
         weights = outputs.get("weights")
         if weights is not None and "va_evaluated" in outputs:  # only where the regularizers were evaluated
@@ -339,6 +356,8 @@ class ViewAdaptiveField(Field):
             losses["consistency"] = cfg.consistency_weight * weighted_mean(outputs["va_consistency"], weights)
         if "va_attention" in outputs:
             self._accumulate_attention(outputs["va_attention"], outputs.get("va_attention_weights"), weights)
+        if "rgb_shared" in outputs and batch is not None and colour_loss is not None:
+            losses["shared_rgb"] = cfg.shared_colour_weight * colour_loss(outputs["rgb_shared"], batch["rgb"])
         return losses
 
     @torch.no_grad()
@@ -417,6 +436,8 @@ class ColorMode:
     """Samples at most this heavy keep the shared colour."""
     fused_samples_per_ray: int
     """Fused samples per ray while fusion is on (0: every visible sample; always 0 without fusion)."""
+    shared_colour: bool = False
+    """``rgb_shared`` (the shared path's colour of every sample) is wanted for ``shared_colour_weight``."""
 
 
 @dataclass(frozen=True)

@@ -13,7 +13,7 @@ from torch import nn
 from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
 from va_plugin.engine.callbacks import AFTER_STEP, TrainingCallback, TrainingCallbackAttributes
-from va_plugin.model_components.losses import psnr_from_mse
+from va_plugin.model_components.losses import psnr_from_mse, rgb_loss
 from va_plugin.model_components.view_appearance import ViewAppearanceConfig
 from va_plugin.model_components.view_warp import ViewWarpConfig
 from va_plugin.rays import RayBundle
@@ -120,6 +120,10 @@ class Model(nn.Module):
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
         return losses
+
+    def colour_loss(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """The model's plain photometric loss (``rgb_loss``) of rendered against target colours ``[R, 3]``."""
+        return rgb_loss(pred, target, self.config.rgb_loss)
 
     def get_metrics_dict(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]
                          ) -> Dict[str, float]:

@@ -330,7 +330,7 @@ class NeuSModel(Model):
             loss["smoothness"] = cfg.smoothness_weight * self._smoothness(outputs)
         extra = getattr(self.field, "extra_losses", None)
         if extra is not None:
-            loss.update(extra(outputs))
+            loss.update(extra(outputs, batch, self.colour_loss))
         return self.apply_extra_losses(loss, outputs, batch)
 
     def _smoothness(self, outputs) -> torch.Tensor:

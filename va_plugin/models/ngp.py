@@ -195,7 +195,7 @@ class NGPModel(Model):
             loss["distortion"] = cfg.distortion_weight * outputs["distortion"].mean()
         extra = getattr(self.field, "extra_losses", None)
         if extra is not None:
-            loss.update(extra(outputs))
+            loss.update(extra(outputs, batch, self.colour_loss))
         return self.apply_extra_losses(loss, outputs, batch)
 
     # -- export ---------------------------------------------------------------------------------
