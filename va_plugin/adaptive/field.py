@@ -88,7 +88,8 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     decoded, composited with the same weights: what a novel view and the mesh colours use), while the
     branches are active (phases 2-3). 0: the paper's loss, in which only the branch and fused colours meet
     the inputs and f_shared is trained through them. The shared colours of the batch's samples are decoded
-    anyway, so it costs one more compositing of the batch."""
+    anyway, so it costs one more compositing of the batch. At 1.0 on GSO-10 level 2: a tie with 0 (-0.03
+    dB, CD equal, LPIPS +0.005; benchmarks/RESULTS.md), hence off."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
     (every view's branch plus the attention); its other visible samples use their own view's branch,
