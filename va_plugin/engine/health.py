@@ -12,13 +12,13 @@ The trainer asks a :class:`TrainingGuard` about every step:
   learning-rate warm-up: while the surface forms from the start sphere inv_s dips for a few dozen
   steps in healthy runs (by up to ~50% at neus's inv_s learning rate of 2e-2, measured on GSO objects);
 * inv_s leaving its sane range, collapsed below ``inv_s_collapse`` times the highest value it reached
-  (its start value to begin with: the surface dissolved into fog) or shot up to ``inv_s_saturation`` (next to its clamp at 1e6: a step function
-  that passes no gradient): an absurd learning rate can do either in one step without any NaN, so
-  it is treated like a blow-up: the last good state is restored with lower learning rates. A surface
-  can also dissolve within a few dozen steps with every value finite (a regularizer that outweighs the
-  colour loss; seen on a real SyncDreamer output, inv_s 195 -> 25 -> 1.0 in 50 steps), so the last good
-  state is only refreshed while inv_s holds at least ``snapshot_inv_s_fraction`` of its peak: the state
-  a collapse rolls back to is one from before the fall.
+  (its start value to begin with: the surface dissolved into fog) or shot up to ``inv_s_saturation``
+  (next to its clamp at 1e6: a step function that passes no gradient): an absurd learning rate can do
+  either in one step without any NaN, so it is treated like a blow-up: the last good state is restored
+  with lower learning rates. A surface can also dissolve within a few dozen steps with every value
+  finite (a regularizer that outweighs the colour loss; seen on a real SyncDreamer output, inv_s 195 ->
+  25 -> 1.0 in 50 steps), so the last good state is only refreshed while inv_s holds at least
+  ``snapshot_inv_s_fraction`` of its peak: the state a collapse rolls back to is one from before the fall.
 
 Each kind of event warns once; the counts go to ``metrics.jsonl`` (``bad_steps``, ``restores``,
 ``lr_scale``). A run that still blows up after ``max_restores`` restores stops with
