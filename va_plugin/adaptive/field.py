@@ -345,7 +345,7 @@ class ViewAdaptiveField(Field):
         """The weighted regularizers of eq. 14, averaged over samples by their rendering weights; the
         attention of the batch (``va_attention``) joins the running attention matrix. With
         ``shared_colour_weight`` and the model's ``colour_loss``, the shared path's render of the batch
-        (``rgb_shared``) against the batch's colours (``shared_rgb``)."""
+        (``rgb_shared``) against the batch's colours, as the loss ``shared_rgb``."""
         cfg = self.config
         weights = outputs.get("weights")
         if weights is not None and "va_evaluated" in outputs:  # only where the regularizers were evaluated

@@ -113,6 +113,11 @@ class Model(nn.Module):
         return groups
 
     def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
+        """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the view-adaptive
+        regularizers), the per-view corrections' penalties and the registered hooks'."""
+        field_losses = getattr(getattr(self, "field", None), "extra_losses", None)
+        if field_losses is not None:
+            losses.update(field_losses(outputs, batch, self.colour_loss))
         if self.view_appearance is not None:
             losses["view_appearance"] = self.view_appearance.loss()
         if self.view_warp is not None:

@@ -328,9 +328,6 @@ class NeuSModel(Model):
             loss["view_deformation"] = self.view_deformation.loss()
         if cfg.smoothness_weight > 0 and "surface_points" in outputs:
             loss["smoothness"] = cfg.smoothness_weight * self._smoothness(outputs)
-        extra = getattr(self.field, "extra_losses", None)
-        if extra is not None:
-            loss.update(extra(outputs, batch, self.colour_loss))
         return self.apply_extra_losses(loss, outputs, batch)
 
     def _smoothness(self, outputs) -> torch.Tensor:

@@ -193,9 +193,6 @@ class NGPModel(Model):
             loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
         if "distortion" in outputs:
             loss["distortion"] = cfg.distortion_weight * outputs["distortion"].mean()
-        extra = getattr(self.field, "extra_losses", None)
-        if extra is not None:
-            loss.update(extra(outputs, batch, self.colour_loss))
         return self.apply_extra_losses(loss, outputs, batch)
 
     # -- export ---------------------------------------------------------------------------------
