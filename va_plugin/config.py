@@ -128,7 +128,7 @@ _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
     "n_importance", "num_threads", "sdf_layers", "shared_colour_weight", "shared_lr_scale",
     "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels", "threshold", "up_sample_steps",
     "warmup_steps", "weight_decay"})
-_UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "train_until"})
+_UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "regularizers_shared_scale", "train_until"})
 
 
 def check_range(name: str, value: Any, path: str) -> None:

@@ -409,6 +409,38 @@ def test_the_regularizers_reshape_the_shared_field_only_when_asked(reach, tiny_s
     assert any(g is not None and bool(g.abs().sum() > 0) for g in to_shared)
 
 
+def test_a_scaled_reach_passes_that_fraction_of_the_regularizers_gradient_to_the_shared_field(tiny_scene, tmp_path):
+    """``regularizers_shared_scale``: the loss values and the branches' and attention's gradients are the
+    joint loss's; the shared field's gradient from L_consistency is that fraction of the joint loss's."""
+    trainer = _trainer("va-neus", tiny_scene, tmp_path / "run",
+                       **{"pipeline.model.field.regularizers_reach_shared": "true"})
+    model, field = trainer.model, trainer.model.field
+    for _ in range(4):
+        _run_step(trainer)
+    field.set_phase(FUSION)
+    with torch.no_grad():
+        for p in field.branches.parameters():
+            p.add_(0.05 * torch.randn_like(p))
+    ray_bundle, batch = trainer.pipeline.datamanager.next_train(6)
+    shared = list(field.base.parameters())
+    adaptive = list(field.branches.parameters()) + list(field.attention.parameters())
+    found = {}
+    for scale in (1.0, 0.2):
+        field.config.regularizers_shared_scale = scale
+        torch.manual_seed(3)  # the same samples in both passes
+        loss = model.get_loss_dict(model.get_outputs(ray_bundle), batch)["consistency"]
+        grads = torch.autograd.grad(loss, shared + adaptive, allow_unused=True)
+        found[scale] = (loss.detach(), [torch.zeros_like(p) if g is None else g for p, g in zip(shared + adaptive, grads)])
+    (loss_joint, joint), (loss_scaled, scaled) = found[1.0], found[0.2]
+    assert torch.allclose(loss_joint, loss_scaled) and loss_joint > 0
+    n = len(shared)
+    assert sum(float(g.abs().sum()) for g in joint[:n]) > 0
+    for a, b in zip(joint[:n], scaled[:n]):
+        assert torch.allclose(0.2 * a, b, rtol=1e-4, atol=1e-7)
+    for a, b in zip(joint[n:], scaled[n:]):
+        assert torch.allclose(a, b, rtol=1e-4, atol=1e-7)
+
+
 @pytest.mark.parametrize("method", ["va-neus", "va-ngp"])
 def test_the_shared_colour_loss_renders_the_shared_path_of_the_training_rays(method, tiny_scene, tmp_path):
     """``shared_colour_weight``: in phases 2-3 the shared path's render of the same training rays (f_shared

@@ -83,6 +83,11 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     at the start of phase 3 the branches' features differ by far more than their colours do, and the
     consistency term's gradient on the shared field was 25x the colour loss's: within 20 steps the SDF
     dissolved (inv_s 183 -> 1.4, training PSNR 25 -> 10; benchmarks/RESULTS.md)."""
+    regularizers_shared_scale: float = 1.0
+    """With ``regularizers_reach_shared``, the fraction of the regularizers' gradient that reaches the shared
+    field (1: the paper's joint loss; 0: the same as not reaching it). Between the two the values and the
+    gradients on the branches and the attention are the joint loss's, and the shared field gets that
+    fraction of its gradient (costs the same extra branch and attention pass as not reaching it)."""
     shared_colour_weight: float = 0.0
     """Weight of a second colour loss, on the shared path's render of the same training rays (f_shared
     decoded, composited with the same weights: what a novel view and the mesh colours use), while the
@@ -131,6 +136,8 @@ class ViewAdaptiveFieldConfig(FieldConfig):
                self.diagnostics_scale, self.fused_samples_per_ray, self.consistent_colour_cast) < 0:
             raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale, min_sample_weight, "
                               "diagnostics_scale, fused_samples_per_ray and consistent_colour_cast must be >= 0")
+        if not 0.0 <= self.regularizers_shared_scale <= 1.0:
+            raise ConfigError(f"regularizers_shared_scale must be in [0, 1], got {self.regularizers_shared_scale}")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:
@@ -326,9 +333,9 @@ class ViewAdaptiveField(Field):
             out["rgb_canonical"] = self.base.decode_color(canonical)
         if mode.fusion and mode.training:
             reg_tokens, reg_alpha = tokens, alpha
-            if not self.config.regularizers_reach_shared and (self.config.entropy_weight > 0
-                                                              or self.config.consistency_weight > 0):
-                reg_tokens, reg_alpha = self.attention(self.branches.forward_all(flat.detach()))
+            reach = self.config.regularizers_shared_scale if self.config.regularizers_reach_shared else 0.0
+            if reach < 1.0 and (self.config.entropy_weight > 0 or self.config.consistency_weight > 0):
+                reg_tokens, reg_alpha = self.attention(self.branches.forward_all(scale_gradient(flat, reach)))
             if self.config.entropy_weight > 0:
                 out["va_entropy"] = attention_entropy(reg_alpha)
             if self.config.consistency_weight > 0:
@@ -410,6 +417,13 @@ class ViewAdaptiveField(Field):
         if self.fusion_active():
             out["fused_share"] = round(self.fused_share, 4)
         return out
+
+
+def scale_gradient(x: torch.Tensor, scale: float) -> torch.Tensor:
+    """``x`` in the forward pass; ``scale`` times its gradient in the backward pass (0: detached)."""
+    if scale <= 0.0:
+        return x.detach()
+    return x.detach() + scale * (x - x.detach())
 
 
 def backbone_state_in_wrapper(model_state: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
