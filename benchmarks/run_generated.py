@@ -89,6 +89,8 @@ def run_one(method: str, source: Path, run_dir: Path, args) -> float:
         arguments += ["--steps", str(args.steps)]
     if args.force_adaptive and method.startswith("va-"):
         arguments += ["--set", "pipeline.model.field.skip_consistent_scenes=false"]
+    for assignment in args.set:
+        arguments += ["--set", assignment]
     if not args.resume and list_checkpoints(run_dir):
         raise SystemExit(f"error: {run_dir} already holds checkpoints; pass --resume to continue it")
     methods = discover_methods()
@@ -146,7 +148,7 @@ def rig_check(source: Path) -> dict:
 
 def summary_figure(inputs, methods, out: Path, frames: int = 3, resolution: int = 128):
     """One row per input: its first training view, then ``frames`` grey turntable frames of each
-    method's mesh (SyncDreamer orbit, 30 deg elevation); written to ``OUT/generated_meshes.png``."""
+    method's (run name's, ``RUNS/INPUT-METHOD``) mesh (SyncDreamer orbit, 30 deg elevation); written to ``OUT/generated_meshes.png``."""
     import cv2
     import numpy as np
 
@@ -234,8 +236,16 @@ def main(argv=None) -> int:
     parser.add_argument("--force-adaptive", action="store_true",
                         help="run the adaptive phases even where the consistent-scene test would skip them "
                              "(runs and rows are named METHOD-forced)")
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="a config override of every run (as va-train's --set; repeatable); needs --label")
+    parser.add_argument("--label", default="", help="suffix of the runs' and rows' names (METHOD-LABEL), "
+                                                    "for a variant made with --set")
     parser.add_argument("--figure-only", action="store_true", help="only rebuild tables and figures")
     args = parser.parse_args(argv)
+    if args.set and not args.label:
+        parser.error("--set changes the runs: name them with --label (rows are named METHOD-LABEL)")
+    if args.label and not args.label.replace("-", "").replace("_", "").isalnum():
+        parser.error(f"--label must be letters, digits, '-' or '_', got {args.label!r}")
 
     inputs = find_inputs(args.data_root)
     if args.inputs:
@@ -253,10 +263,14 @@ def main(argv=None) -> int:
             row = json.loads(line)
             done[(row["input"], row["method"])] = row
 
+    def tag_of(method: str) -> str:
+        tag = f"{method}-forced" if args.force_adaptive and method.startswith("va-") else method
+        return f"{tag}-{args.label}" if args.label else tag
+
     total = len(inputs) * len(methods)
     start = time.perf_counter()
     for k, ((name, source), method) in enumerate(((i, m) for i in inputs for m in methods), 1):
-        tag = f"{method}-forced" if args.force_adaptive and method.startswith("va-") else method
+        tag = tag_of(method)
         run_dir = args.out / "runs" / f"{name}-{tag}"
         key = (source.parent.name + "/" + source.name, tag)
         if args.figure_only or (args.resume and key in done and (run_dir / "mesh.ply").is_file()):
@@ -288,7 +302,7 @@ def main(argv=None) -> int:
             row["residual_spread_db"] = round(residual_spread_db(views), 2)
         row["shared_path_psnr"] = shared_path_psnr(run_dir)
     write_tables(rows, args.out)
-    figure = summary_figure(inputs, methods, args.out)
+    figure = summary_figure(inputs, [tag_of(m) for m in methods], args.out)
     if figure is not None:
         print(f"wrote {figure}")
     adaptive_runs = [(f"{name} {r['method']}", args.out / "runs" / f"{name}-{r['method']}")

@@ -65,3 +65,25 @@ def test_shared_path_psnr_renders_the_training_views_and_caches(gen, tiny_scene,
     cached["mean_psnr"] = 99.0  # a second call reads the cache instead of rendering again
     (run / "train_views_psnr.json").write_text(json.dumps(cached))
     assert gen.shared_path_psnr(run) == 99.0
+
+
+def test_a_variant_made_with_set_needs_a_label_and_reaches_the_run(gen, tmp_path, monkeypatch):
+    data = tmp_path / "data" / "syncdreamer"
+    data.mkdir(parents=True)
+    (data / "a.png").write_bytes(b"")
+    with pytest.raises(SystemExit):  # argparse's error: one line, exit 2
+        gen.main(["--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
+                  "--set", "pipeline.model.field.shared_colour_weight=1"])
+    with pytest.raises(SystemExit):
+        gen.main(["--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--label", "a b"])
+    seen = []
+
+    def fake_run(method, source, run_dir, args):  # what run_one would train: its arguments and folder
+        seen.append((method, run_dir.name, list(args.set)))
+        raise SystemExit(0)
+
+    monkeypatch.setattr(gen, "run_one", fake_run)
+    with pytest.raises(SystemExit):
+        gen.main(["--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--methods", "va-neus",
+                  "--set", "pipeline.model.field.shared_colour_weight=1", "--label", "shared"])
+    assert seen == [("va-neus", "a-va-neus-shared", ["pipeline.model.field.shared_colour_weight=1"])]
