@@ -471,6 +471,6 @@ def test_the_shared_colour_loss_renders_the_shared_path_of_the_training_rays(met
         shared = list(field.base.parameters())
         grads = torch.autograd.grad(losses["shared_rgb"], shared, allow_unused=True)
         assert any(g is not None and bool(g.abs().sum() > 0) for g in grads)
-    off = _trainer(method, tiny_scene, tmp_path / "off")
+    off = _trainer(method, tiny_scene, tmp_path / "off", **{"pipeline.model.field.shared_colour_weight": 0})
     off.model.field.set_phase(FUSION)
     assert "shared_rgb" not in off.model.get_loss_dict(off.model.get_outputs(ray_bundle), batch)

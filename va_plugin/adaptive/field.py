@@ -93,8 +93,10 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     decoded, composited with the same weights: what a novel view and the mesh colours use), while the
     branches are active (phases 2-3). 0: the paper's loss, in which only the branch and fused colours meet
     the inputs and f_shared is trained through them. The shared colours of the batch's samples are decoded
-    anyway, so it costs one more compositing of the batch. At 1.0 on GSO-10 level 2: a tie with 0 (-0.03
-    dB, CD equal, LPIPS +0.005; benchmarks/RESULTS.md), hence off."""
+    anyway, so it costs one more compositing of the batch (no change in the measured step time). At 1.0
+    on GSO-10 level 2: a tie with 0 (-0.03 dB, CD equal, LPIPS +0.005); on all six real generator outputs
+    the shared path fits the training views 0.27-1.06 dB better than `neus`'s, where at 0 it was below on
+    5/6 (benchmarks/RESULTS.md). `va-neus` sets 1.0; the field's default stays the paper's loss."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
     (every view's branch plus the attention); its other visible samples use their own view's branch,
