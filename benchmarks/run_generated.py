@@ -147,8 +147,9 @@ def rig_check(source: Path) -> dict:
 
 
 def summary_figure(inputs, methods, out: Path, frames: int = 3, resolution: int = 128):
-    """One row per input: its first training view, then ``frames`` grey turntable frames of each
-    method's (run name's, ``RUNS/INPUT-METHOD``) mesh (SyncDreamer orbit, 30 deg elevation); written to ``OUT/generated_meshes.png``."""
+    """One row per input: its first training view, then ``frames`` grey turntable frames of the mesh of
+    each run name in ``methods`` (``RUNS/INPUT-NAME``; SyncDreamer orbit, 30 deg elevation); written to
+    ``OUT/generated_meshes.png``."""
     import cv2
     import numpy as np
 
