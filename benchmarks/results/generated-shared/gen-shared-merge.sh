@@ -1,7 +1,7 @@
 #!/bin/bash
 # Gathers the real-output runs of neus, va-neus (default) and va-neus with shared_colour_weight=1 into one folder
 set -e
-cd /work/main
+cd "$(dirname "$0")/../../.."  # the repository root
 M=outputs/gen-shared
 mkdir -p $M/runs
 : > $M/rows.jsonl
