@@ -474,3 +474,33 @@ def test_the_shared_colour_loss_renders_the_shared_path_of_the_training_rays(met
     off = _trainer(method, tiny_scene, tmp_path / "off", **{"pipeline.model.field.shared_colour_weight": 0})
     off.model.field.set_phase(FUSION)
     assert "shared_rgb" not in off.model.get_loss_dict(off.model.get_outputs(ray_bundle), batch)
+
+
+def test_the_shared_colour_loss_can_leave_the_opacities_alone(tiny_scene, tmp_path):
+    """``shared_colour_detach_weights``: the shared path's render keeps its value, but its loss no longer
+    reaches the opacities (on `va-neus`, inv_s acts on the opacities alone, so its gradient from the term
+    is exactly 0), while the shared colour network still gets the same gradient as without the option."""
+    grads, values = {}, {}
+    ray_bundle = batch = None
+    for detach in (False, True):
+        trainer = _trainer("va-neus", tiny_scene, tmp_path / f"run{detach}",
+                           **{"pipeline.model.field.shared_colour_weight": 1.0,
+                              "pipeline.model.field.shared_colour_detach_weights": detach})
+        model, field = trainer.model, trainer.model.field
+        assert field.detached_weight_keys == (("rgb_shared",) if detach else ())
+        if ray_bundle is None:
+            ray_bundle, batch = trainer.pipeline.datamanager.next_train(6)
+        field.set_phase(FUSION)
+        torch.manual_seed(0)
+        losses = model.get_loss_dict(model.get_outputs(ray_bundle), batch)
+        values[detach] = losses["shared_rgb"].detach()
+        inv_s = list(model.variance.parameters())
+        colour = [p for name, p in field.base.named_parameters() if "color" in name or "colour" in name]
+        assert colour, "the shared field has a colour network"
+        grads[detach] = torch.autograd.grad(losses["shared_rgb"], inv_s + colour, allow_unused=True)
+    assert torch.allclose(values[False], values[True])
+    n = len(list(model.variance.parameters()))
+    assert all(g is not None and bool(g.abs().sum() > 0) for g in grads[False][:n])
+    assert all(g is None or bool(g.abs().sum() == 0) for g in grads[True][:n])
+    for a, b in zip(grads[False][n:], grads[True][n:]):
+        assert a is not None and b is not None and torch.allclose(a, b, atol=1e-7)

@@ -18,7 +18,7 @@ The field knows nothing about training steps: it holds a phase flag (1 pre-train
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Type
+from typing import Callable, Dict, List, Optional, Tuple, Type
 
 import torch
 from torch import nn
@@ -97,6 +97,10 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     on GSO-10 level 2: a tie with 0 (-0.03 dB, CD equal, LPIPS +0.005); on all six real generator outputs
     the shared path fits the training views 0.27-1.06 dB better than `neus`'s, where at 0 it was below on
     5/6 (benchmarks/RESULTS.md). `va-neus` sets 1.0; the field's default stays the paper's loss."""
+    shared_colour_detach_weights: bool = False
+    """With ``shared_colour_weight``, composite the shared path's render with detached rendering weights, so
+    that its loss trains the shared colour (and the features it decodes) but not the opacities: the
+    opacities then meet the colour loss once, through the branch path, as in `neus`, instead of twice."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
     (every view's branch plus the attention); its other visible samples use their own view's branch,
@@ -199,6 +203,11 @@ class ViewAdaptiveField(Field):
     @property
     def current_phase(self) -> int:
         return self._phase
+
+    @property
+    def detached_weight_keys(self) -> Tuple[str, ...]:
+        """Colours the model composites with detached rendering weights (see ``shared_colour_detach_weights``)."""
+        return ("rgb_shared",) if self.config.shared_colour_detach_weights else ()
 
     def branches_active(self) -> bool:
         return self.branches is not None and self.current_phase >= BRANCHES

@@ -13,6 +13,7 @@ from torch import nn
 from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
 from va_plugin.engine.callbacks import AFTER_STEP, TrainingCallback, TrainingCallbackAttributes
+from va_plugin.model_components import renderers
 from va_plugin.model_components.losses import psnr_from_mse, rgb_loss
 from va_plugin.model_components.view_appearance import ViewAppearanceConfig
 from va_plugin.model_components.view_warp import ViewWarpConfig
@@ -111,6 +112,24 @@ class Model(nn.Module):
         if self.view_warp is not None:
             groups["view_warp"] = list(self.view_warp.parameters())
         return groups
+
+    def composite_other_colours(self, outputs: Dict[str, torch.Tensor], color: Dict[str, torch.Tensor],
+                                weights: torch.Tensor, per_ray: Callable[[torch.Tensor], torch.Tensor]
+                                ) -> Dict[str, torch.Tensor]:
+        """``outputs`` plus the field's other per-sample outputs besides ``rgb``: colours (``rgb_*``, e.g. the
+        canonical or the shared one) composited per ray with ``weights [R, s]`` (detached for the keys the
+        field lists in ``detached_weight_keys``: a loss on them then trains the colour, not the opacities),
+        anything else as it is. ``per_ray`` lays a per-sample tensor out as ``[R, s, ...]``."""
+        detached = getattr(getattr(self, "field", None), "detached_weight_keys", ())
+        for key, value in color.items():
+            if key == "rgb":
+                continue
+            if key.startswith("rgb_"):
+                w = weights.detach() if key in detached else weights
+                outputs[key] = renderers.render_rgb(w, per_ray(value), self.background)
+            else:
+                outputs[key] = value
+        return outputs
 
     def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
         """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the view-adaptive

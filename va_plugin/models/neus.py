@@ -303,11 +303,7 @@ class NeuSModel(Model):
             "gradients": gradients,
             "inside": (positions.detach().norm(dim=-1) < self.scene.scene_radius),
         }
-        for key, value in color.items():  # other colours (the canonical one, for diagnostics): per ray
-            if key != "rgb":
-                outputs[key] = (renderers.render_rgb(weights, unpack(value), self.background)
-                                if key.startswith("rgb_") else value)
-        return outputs
+        return self.composite_other_colours(outputs, color, weights, unpack)
 
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
         cfg = self.config

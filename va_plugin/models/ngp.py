@@ -180,11 +180,7 @@ class NGPModel(Model):
         if self.training and self.config.distortion_weight > 0:
             scale = 1.0 / (2.0 * self.scene.scene_radius)  # distances in units of the bound's diameter
             outputs["distortion"] = distortion(weights, samples.t_mid * scale, samples.deltas * scale)
-        for key, value in color.items():  # other colours (the canonical one, for diagnostics): per ray
-            if key != "rgb":
-                outputs[key] = (renderers.render_rgb(weights, scatter(value, keep), self.background)
-                                if key.startswith("rgb_") else value)
-        return outputs
+        return self.composite_other_colours(outputs, color, weights, lambda value: scatter(value, keep))
 
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
         cfg = self.config
