@@ -96,7 +96,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     anyway, so it costs one more compositing of the batch (no change in the measured step time). At 1.0
     on GSO-10 level 2: a tie with 0 (-0.03 dB, CD equal, LPIPS +0.005); on all six real generator outputs
     the shared path fits the training views 0.27-1.06 dB better than `neus`'s, where at 0 it was below on
-    5/6 (benchmarks/RESULTS.md). `va-neus` sets 1.0; the field's default stays the paper's loss."""
+    5/6; at level 3 it costs about 1.6% CD against 0 (x1.019 against `neus` where 0 has x1.003), at level 0
+    nothing measurable (benchmarks/RESULTS.md). `va-neus` sets 1.0; the field's default stays the paper's
+    loss."""
     shared_colour_detach_weights: bool = False
     """With ``shared_colour_weight``, composite the shared path's render with detached rendering weights, so
     that its loss trains the shared colour (and the features it decodes) but not the opacities: the
