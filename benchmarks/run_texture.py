@@ -28,8 +28,8 @@ from va_plugin.errors import ConfigError
 from va_plugin.eval.evaluate import ground_truth_mesh_path, image_metrics, load_mesh
 from va_plugin.eval.mesh_render import textured_mesh_metrics
 from va_plugin.export.mesh import extract_mesh
-from va_plugin.export.texture import (Views, bake_picture, bake_texture, check_texture_size, field_fallback,
-                                      run_views)
+from va_plugin.export.texture import (MAX_TEXTURE_FACES, Views, bake_picture, bake_texture, check_texture_size,
+                                      field_fallback, run_views)
 
 KEYS = ("psnr", "ssim", "lpips")
 BAKES = {"robust": dict(fusion="robust"),  # with the per-view colour harmonisation (the default)
@@ -80,9 +80,11 @@ def run_mesh(pipeline, source: str, resolution: int):
 
 
 def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean"),
-             reuse_field: bool = False, mesh_source: str = "extracted", mesh_resolution: int = 128) -> dict:
+             reuse_field: bool = False, mesh_source: str = "extracted", mesh_resolution: int = 128,
+             max_faces: int = MAX_TEXTURE_FACES) -> dict:
     pipeline, state = load_run(run, device="cpu")
-    record = {"run": str(run), "steps": int(state["step"]), "mesh": mesh_source, "texture_size": size}
+    record = {"run": str(run), "steps": int(state["step"]), "mesh": mesh_source, "texture_size": size,
+              "max_faces": max_faces}
     if mesh_source == "extracted":
         record["mesh_resolution"] = mesh_resolution
     started = time.perf_counter()
@@ -98,7 +100,8 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
     atlas = None
     for fusion in bakes:
         textured, report = bake_texture(mesh, run_views(pipeline), size=size, fallback=fallback, atlas=atlas,
-                                        **BAKES[fusion])
+                                        max_faces=max_faces, **BAKES[fusion])
+        record["faces_textured"] = len(textured.faces)
         atlas = (textured.vertices, textured.faces, textured.uv)  # unwrap once, bake twice
         scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False)
         record[fusion] = {**{k: scores[k] for k in KEYS}, **report.summary()}
@@ -112,11 +115,12 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
 
 
 def resume_key(record: dict) -> tuple:
-    """What makes two records the same measurement: the run, the mesh (source and grid) and the texture size.
-    Records written before these were kept are read as the defaults of then (extracted, 128, 1024)."""
+    """What makes two records the same measurement: the run, the mesh (source and grid), the texture size and
+    the face cap. Records written before these were kept are read as the defaults of then (extracted, 128,
+    1024, no cap)."""
     mesh = record.get("mesh", "extracted")
     resolution = record.get("mesh_resolution", 128) if mesh == "extracted" else None
-    return record["run"], mesh, resolution, record.get("texture_size", 1024)
+    return record["run"], mesh, resolution, record.get("texture_size", 1024), record.get("max_faces", 0)
 
 
 def table(records) -> str:
@@ -155,7 +159,12 @@ def main(argv=None) -> int:
                         "the textured score is the geometry's")
     parser.add_argument("--mesh-resolution", type=int, default=128,
                         help="marching-cubes grid of the extracted mesh (default 128)")
+    parser.add_argument("--max-faces", type=int, default=MAX_TEXTURE_FACES,
+                        help=f"simplify the mesh to at most this many faces before the unwrap (default "
+                        f"{MAX_TEXTURE_FACES}, as va-export; 0 keeps every face)")
     args = parser.parse_args(argv)
+    if args.max_faces < 0 or 0 < args.max_faces < 4:
+        raise ConfigError(f"--max-faces must be 0 (keep every face) or at least 4, got {args.max_faces}")
     if not 16 <= args.mesh_resolution <= 512:
         raise ConfigError(f"--mesh-resolution must be in [16, 512], got {args.mesh_resolution}")
     bakes = [b.strip() for b in args.bakes.split(",") if b.strip()]
@@ -171,12 +180,12 @@ def main(argv=None) -> int:
             record = json.loads(line)
             done[resume_key(record)] = record
     key = lambda run: resume_key({"run": str(run), "mesh": args.mesh, "mesh_resolution": args.mesh_resolution,  # noqa: E731
-                                  "texture_size": args.texture_size})
+                                  "texture_size": args.texture_size, "max_faces": args.max_faces})
     for k, run in enumerate(args.runs):
         if key(run) in done:
             continue
         record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes,
-                          args.reuse_field_scores, args.mesh, args.mesh_resolution)
+                          args.reuse_field_scores, args.mesh, args.mesh_resolution, args.max_faces)
         done[key(run)] = record
         with args.out.open("a") as f:
             f.write(json.dumps(record) + "\n")

@@ -76,6 +76,8 @@ def test_the_ground_truth_mesh_or_a_finer_grid_can_be_textured(run, tmp_path):
     assert fine["mesh"] == "extracted" and fine["mesh_resolution"] == 48
     assert truth["faces"] != fine["faces"] and truth["robust"]["texels_seen"] > 0
     assert script.main(base + ["--out", str(tmp_path / "bad.jsonl"), "--mesh-resolution", "4"]) == 2
+    assert fine["max_faces"] == 40000 and fine["faces_textured"] <= fine["faces"]
+    assert script.main(base + ["--out", str(tmp_path / "bad.jsonl"), "--max-faces", "2"]) == 2
 
 
 def test_the_ground_truth_mesh_of_a_scene_without_one_is_one_error_line(run, tmp_path, monkeypatch, capsys):

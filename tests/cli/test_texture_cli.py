@@ -33,12 +33,32 @@ def test_export_writes_a_textured_mesh_that_loads(run, tmp_path, suffix, files, 
     assert isinstance(loaded.visual, trimesh.visual.TextureVisuals) and len(loaded.faces) > 0
     record = json.loads((tmp_path / "m_bake.json").read_text())
     assert record["texture_size"] == 64 and len(record["view_texels"]) == 4 and record["texels_seen"] > 0
+    assert record["faces_textured"] == len(loaded.faces) <= record["faces_extracted"]
+
+
+def test_export_simplifies_the_mesh_to_max_faces(run, tmp_path, capsys):
+    out = tmp_path / "m.glb"
+    code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "32", "--resolution", "24",
+                            "--max-faces", "200", "--output", str(out), "--device", "cpu"])
+    printed = capsys.readouterr().out
+    assert code == 0
+    record = json.loads((tmp_path / "m_bake.json").read_text())
+    assert record["faces_textured"] <= 200 < record["faces_extracted"], record
+    assert "simplified from" in printed and len(trimesh.load(out, force="mesh").faces) == record["faces_textured"]
+
+
+def test_max_faces_without_texture_is_refused(run, tmp_path, capsys):
+    code = export_cli.main(["mesh", "--load-dir", str(run), "--max-faces", "100", "--output", str(tmp_path / "m.ply")])
+    one_line_error(capsys, code, "needs --texture")
+    assert list(tmp_path.iterdir()) == []
 
 
 @pytest.mark.parametrize("argv, message", [
     (["--texture-size", "100"], "power of two"),
     (["--texture-size", "65536"], "power of two"),
     (["--output", "{tmp}/m.ply"], "not '.ply'"),
+    (["--max-faces", "-1"], "--max-faces must be 0"),
+    (["--max-faces", "3"], "--max-faces must be 0"),
 ])
 def test_bad_texture_options_are_refused_before_any_work(run, tmp_path, argv, message, capsys):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]

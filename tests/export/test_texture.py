@@ -8,7 +8,8 @@ from va_plugin.data.rigs import orbit_cameras
 from va_plugin.errors import VAError
 from va_plugin.eval.mesh_render import UnlitMeshRenderer, render_on_background, textured_renderer
 from va_plugin.export.texture import (Views, apply_harmonisation, bake_texture, bilinear, check_texture_size,
-                                      dilate, fuse, harmonise, weighted_medoid, write_textured_mesh)
+                                      dilate, fuse, harmonise, simplify_for_texture, weighted_medoid,
+                                      write_textured_mesh)
 
 RES = 48
 TEXTURE = 64
@@ -230,3 +231,22 @@ def test_a_view_with_a_colour_cast_is_levelled_before_fusion():
     covered, points = texel_truth(clean)
     baseline = np.abs(clean.image[covered] - smooth_colour(points)).mean()
     assert errors[True] < baseline + 0.001 and errors[False] > 1.8 * errors[True]
+
+
+def test_a_dense_mesh_is_simplified_before_the_unwrap_and_still_bakes_its_colours():
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=0.35)  # 20480 faces
+    simple = simplify_for_texture(sphere, 2000)
+    assert 1000 < len(simple.faces) <= 2000
+    radius = np.linalg.norm(simple.vertices, axis=-1)
+    assert np.abs(radius - 0.35).max() < 0.01  # the shape is kept
+    assert simplify_for_texture(sphere, 0) is sphere and simplify_for_texture(sphere, 10**6) is sphere
+    with pytest.raises(VAError, match="max-faces"):
+        simplify_for_texture(sphere, 2)
+    views = cube_views(sphere, SIX_SIDES["azimuths"], SIX_SIDES["elevations"])
+    textured, report = bake_texture(sphere, views, size=TEXTURE, max_faces=2000)
+    assert len(textured.faces) == len(simple.faces) and "simplify" in report.seconds
+    covered, points = texel_truth(textured)
+    error = np.abs(textured.image[covered] - smooth_colour(points)).mean(-1)
+    assert np.median(error) < 0.01
+    whole, _ = bake_texture(sphere, views, size=TEXTURE, max_faces=0)
+    assert len(whole.faces) == len(sphere.faces)

@@ -22,6 +22,9 @@ def build_parser() -> argparse.ArgumentParser:
     mesh.add_argument("--texture", action="store_true",
                       help="UV-unwrap the mesh and bake a texture from the input views (.glb or .obj+.mtl+.png)")
     mesh.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
+    mesh.add_argument("--max-faces", type=int, default=None,
+                      help="with --texture: simplify the mesh to at most this many faces before the UV unwrap "
+                      "(default 40000; 0 keeps every face)")
     mesh.add_argument("--fusion", choices=("robust", "mean"), default="robust",
                       help="how disagreeing views are fused per texel: robust consensus or weighted mean")
     mesh.add_argument("--no-harmonise", action="store_true",
@@ -63,6 +66,10 @@ def main(argv: Optional[List[str]] = None) -> int:
         if args.texture:
             check_texture_size(args.texture_size)
             check_texture_output(args.output)
+            if args.max_faces is not None and (args.max_faces < 0 or 0 < args.max_faces < 4):
+                raise ConfigError(f"--max-faces must be 0 (keep every face) or at least 4, got {args.max_faces}")
+        elif args.max_faces is not None:
+            raise ConfigError("--max-faces simplifies the mesh for its texture: it needs --texture")
         check_mesh_resolution(args.resolution)
     pipeline, _ = load_run(args.load_dir, device=args.device)
     if args.what in ("render", "diagnostics"):
@@ -81,9 +88,13 @@ def main(argv: Optional[List[str]] = None) -> int:
 
             textured, report, written = texture_run_mesh(pipeline, mesh, args.output, args.texture_size, args.fusion,
                                                          args.use_inconsistency,
-                                                         harmonise_views=False if args.no_harmonise else None)
+                                                         harmonise_views=False if args.no_harmonise else None,
+                                                         **({} if args.max_faces is None
+                                                            else {"max_faces": args.max_faces}))
             seen = report.seen / max(report.covered, 1)
-            print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces and a "
+            simplified = f" (simplified from {len(mesh.faces)})" if len(textured.faces) < len(mesh.faces) else ""
+            print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces{simplified} "
+                  "and a "
                   f"{args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view) written to "
                   + ", ".join(str(p) for p in written))
             return 0

@@ -68,6 +68,10 @@ channel); on GSO a fit that reached 0.67 in every channel came from misregistere
 INCONSISTENCY_SCALE = 0.05
 """With inconsistency maps: a view keeps exp(-map / this) of its weight (0.05 = a clear disagreement)."""
 PADDING_TEXELS = 16
+MAX_TEXTURE_FACES = 40_000
+"""Meshes with more faces are simplified (quadric decimation) before the UV unwrap, whose time grows
+steeply with the face count on noisy surfaces (GSO cream, 83k faces: 82 s, at 40k 19 s, texture unchanged;
+at 20k it lost detail: benchmarks/RESULTS.md, "Faces before the unwrap")."""
 
 
 @dataclass
@@ -144,6 +148,23 @@ def check_texture_size(size: int) -> None:
     if size < MIN_TEXTURE_SIZE or size > MAX_TEXTURE_SIZE or size & (size - 1):
         raise VAError(f"--texture-size must be a power of two from {MIN_TEXTURE_SIZE} to {MAX_TEXTURE_SIZE}, "
                       f"got {size}")
+
+
+def simplify_for_texture(mesh: trimesh.Trimesh, max_faces: Optional[int] = MAX_TEXTURE_FACES) -> trimesh.Trimesh:
+    """``mesh`` with at most ``max_faces`` faces (open3d's quadric decimation, which keeps the shape where
+    it is flat), or ``mesh`` itself when it has no more, or ``max_faces`` is 0 or None."""
+    faces = np.asarray(mesh.faces)
+    if not max_faces or len(faces) <= max_faces:
+        return mesh
+    if max_faces < 4:
+        raise VAError(f"--max-faces must be 0 (keep every face) or at least 4, got {max_faces}")
+    simple = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
+                                       o3d.utility.Vector3iVector(faces.astype(np.int32)))
+    simple = simple.simplify_quadric_decimation(target_number_of_triangles=int(max_faces))
+    simple.remove_degenerate_triangles()
+    simple.remove_unreferenced_vertices()
+    return trimesh.Trimesh(np.asarray(simple.vertices, np.float32), np.asarray(simple.triangles, np.int64),
+                           process=False)
 
 
 def unwrap(mesh: trimesh.Trimesh, size: int, padding: int = 4):
@@ -440,9 +461,10 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Optional[Fallback] = None, progress: bool = False, atlas=None,
-                 harmonise_views: Optional[bool] = None):
-    """UV-unwrap ``mesh`` and bake its texture from ``views``: ``(TexturedMesh, BakeReport)``. ``atlas``:
-    the ``(vertices, faces, uv)`` of an earlier :func:`unwrap` of the same mesh at the same size, reused.
+                 harmonise_views: Optional[bool] = None, max_faces: Optional[int] = MAX_TEXTURE_FACES):
+    """UV-unwrap ``mesh`` (first simplified to ``max_faces``, see :func:`simplify_for_texture`) and bake its
+    texture from ``views``: ``(TexturedMesh, BakeReport)``. ``atlas``: the ``(vertices, faces, uv)`` of an
+    earlier :func:`unwrap` of the same mesh at the same size (the textured mesh's own), reused as it is.
     ``harmonise_views``: level each view's colours against the others (:func:`harmonise`) before fusing;
     None: with robust fusion only (mean fusion stays the plain angle-weighted average).
 
@@ -454,6 +476,10 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     if len(np.asarray(mesh.faces)) == 0:
         raise VAError("the mesh has no faces: nothing to texture")
     seconds = {}
+    if atlas is None:
+        started = time.perf_counter()
+        mesh = simplify_for_texture(mesh, max_faces)
+        seconds["simplify"] = time.perf_counter() - started
     started = time.perf_counter()
     vertices, faces, uv = unwrap(mesh, size)[:3] if atlas is None else atlas
     seconds["unwrap"] = time.perf_counter() - started
@@ -600,7 +626,8 @@ def write_bake_record(report: BakeReport, path: Path, extra: Optional[Dict[str, 
 
 
 def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 1024, fusion: str = "robust",
-                     inconsistency: bool = False, progress: bool = True, harmonise_views: Optional[bool] = None):
+                     inconsistency: bool = False, progress: bool = True, harmonise_views: Optional[bool] = None,
+                     max_faces: Optional[int] = MAX_TEXTURE_FACES):
     """Bake ``mesh`` from a loaded run's training views (field colour where none sees), write it to
     ``output`` (GLB or OBJ+MTL+PNG) with ``<stem>_bake.png`` (atlas | per-view weight maps) and
     ``<stem>_bake.json`` beside it; returns ``(TexturedMesh, BakeReport, written paths)``."""
@@ -608,9 +635,10 @@ def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 
     check_texture_output(output)
     views = run_views(pipeline, inconsistency=inconsistency, progress=progress)
     textured, report = bake_texture(mesh, views, size=size, fusion=fusion, fallback=field_fallback(pipeline.model),
-                                    progress=progress, harmonise_views=harmonise_views)
+                                    progress=progress, harmonise_views=harmonise_views, max_faces=max_faces)
     written = write_textured_mesh(textured, output)
     written.append(bake_picture(textured, report, output.with_name(output.stem + "_bake.png")))
     written.append(write_bake_record(report, output.with_name(output.stem + "_bake.json"),
-                                     {"texture_size": size, "fusion": fusion, "inconsistency_maps": inconsistency}))
+                                     {"texture_size": size, "fusion": fusion, "inconsistency_maps": inconsistency,
+                                      "faces_extracted": len(mesh.faces), "faces_textured": len(textured.faces)}))
     return textured, report, written
