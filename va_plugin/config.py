@@ -119,8 +119,8 @@ _POSITIVE = frozenset({
     "checkpoint_every", "color_width", "density_threshold", "eval_chunk", "features_per_level",
     "finite_difference_cells", "hidden_width", "image_scale", "init_radius", "keep_checkpoints",
     "log_every", "max_resolution", "max_skips_in_a_row", "max_steps", "n_levels", "n_samples",
-    "rays_per_batch", "resolution", "scene_radius", "sdf_width", "skip_margin", "smoothness_points",
-    "smoothness_radius", "snapshot_every", "softplus_beta", "update_every"})
+    "rays_per_batch", "render_sharpness", "resolution", "scene_radius", "sdf_width", "skip_margin",
+    "smoothness_points", "smoothness_radius", "snapshot_every", "softplus_beta", "update_every"})
 _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
     "color_grid_levels", "color_layers", "consistent_colour_cast", "consistent_residual_db", "diagnostics_scale",
     "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",

@@ -144,3 +144,46 @@ def test_bad_smoothness_options_are_config_errors(key, value, tiny_scene, tmp_pa
 
     with pytest.raises(ConfigError, match=key):
         _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})
+
+
+def test_render_sharpness_scales_inv_s_for_novel_views_only(tiny_scene, tmp_path):
+    from va_plugin.rays import RayBundle
+
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.render_sharpness": 3.0})
+    model = trainer.model
+    with torch.no_grad():
+        model.variance.variance.fill_(0.4)  # inv_s = e^4
+    rays, _ = trainer.pipeline.datamanager.next_train(0)
+    novel = RayBundle(rays.origins, rays.directions, torch.full_like(rays.camera_indices, -1))
+    model.eval()
+    sharp = model.get_outputs(novel)
+    as_trained = model.get_outputs(rays)  # training views' own rays: the learned inv_s
+    model.config.render_sharpness = 1.0
+    plain = model.get_outputs(novel)
+    own = model.get_outputs(rays)
+    # the reference: the same render with the learned inv_s itself three times larger
+    with torch.no_grad():
+        model.variance.variance.fill_(0.4 + torch.log(torch.tensor(3.0)).item() / 10.0)
+    reference = model.get_outputs(novel)
+    for key in ("rgb", "accumulation"):
+        assert torch.allclose(sharp[key], reference[key], atol=1e-5), key
+        assert torch.equal(as_trained[key], own[key]), key
+    # a sharper kernel moves the opacity towards 0 or 1
+    gap = lambda out: (out["accumulation"] * (1 - out["accumulation"])).mean()  # noqa: E731
+    assert gap(sharp) < gap(plain)
+    model.train()
+    model.config.render_sharpness = 3.0
+    with torch.no_grad():
+        model.variance.variance.fill_(0.4)
+    torch.manual_seed(2)
+    trained = model.get_outputs(novel)
+    model.config.render_sharpness = 1.0
+    torch.manual_seed(2)
+    assert torch.equal(trained["rgb"], model.get_outputs(novel)["rgb"])  # training never sharpens
+
+
+def test_render_sharpness_must_be_positive(tiny_scene, tmp_path):
+    from va_plugin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="render_sharpness"):
+        _trainer(tiny_scene, tmp_path, **{"pipeline.model.render_sharpness": 0.0})

@@ -52,6 +52,12 @@ class NeuSModelConfig(ModelConfig):
     non-finite value; the training guard rolls that back too (``health.inv_s_saturation``)."""
     variance_init: float = 0.3
     """Initial v of inv_s = exp(10 v)."""
+    render_sharpness: float = 1.0
+    """Factor on the learned inv_s when rendering novel views outside training (evaluation, ``va-export
+    render``, turntables: batches whose rays all take the canonical path, camera index -1). Above 1 the
+    renders come closer to the surface the mesh is cut from: sharper silhouettes and texture (lower
+    LPIPS), at some held-out PSNR where the surface is slightly off (benchmarks/RESULTS.md, "Render
+    sharpness"). Training, and renders of training views, always use the learned value."""
     sdf_gradient: str = "auto"
     """How the SDF's gradient (the cosine term of alpha, the normals, the eikonal loss) is computed:
     "autograd" (``torch.autograd.grad`` with ``create_graph``, so the loss's backward is a double
@@ -153,6 +159,15 @@ class NeuSModel(Model):
             groups["view_deformation"] = list(self.view_deformation.parameters())
         return self.with_shared_param_groups(groups)
 
+    def render_inv_s(self, ray_bundle: RayBundle) -> torch.Tensor:
+        """inv_s for rendering ``ray_bundle``: the learned value, times ``render_sharpness`` for a
+        novel-view batch outside training (every ray on the canonical path)."""
+        inv_s = self.variance.inv_s()
+        factor = self.config.render_sharpness
+        if factor != 1.0 and not self.training and bool((ray_bundle.camera_indices < 0).all()):
+            inv_s = inv_s * factor
+        return inv_s
+
     def sharpness(self) -> Optional[float]:
         return float(self.variance.inv_s().detach())
 
@@ -182,7 +197,7 @@ class NeuSModel(Model):
             # between samples the SDF (|grad| ~ 1) can dip at most half a step below the smaller end
             half_step = (edges[:, 1:] - edges[:, :-1]).max(-1).values * 0.5
             closest = sdf.min(-1).values - half_step
-            active &= closest * self.variance.inv_s() < cfg.skip_margin
+            active &= closest * self.render_inv_s(ray_bundle) < cfg.skip_margin
         return edges, sdf, active
 
     @torch.no_grad()
@@ -227,7 +242,7 @@ class NeuSModel(Model):
         keep = None
         if self.config.skip_far_samples:
             t_mid = 0.5 * (fine[:, 1:] + fine[:, :-1])
-            keep = sdf_band(edges, sdf_coarse, t_mid, self.variance.inv_s().detach(), self.config.skip_margin)
+            keep = sdf_band(edges, sdf_coarse, t_mid, self.render_inv_s(sub).detach(), self.config.skip_margin)
         inner = self._render(sub, fine, keep)
         if self.training and self.config.smoothness_weight > 0:
             opacity = inner["accumulation"].detach()
@@ -284,7 +299,7 @@ class NeuSModel(Model):
             sdf = sdf + (gradients.detach() * (live - live.detach())).sum(-1, keepdim=True)
         directions = pack(samples.directions[:, None, :].expand(samples.positions.shape))
         true_cos = (directions * gradients).sum(-1)
-        alpha = unpack(neus_alpha(sdf[..., 0], true_cos, pack(samples.deltas), self.variance.inv_s(),
+        alpha = unpack(neus_alpha(sdf[..., 0], true_cos, pack(samples.deltas), self.render_inv_s(ray_bundle),
                                   self.cos_anneal_ratio()))
         weights = renderers.weights_from_alpha(alpha)
         sample_weights = pack(weights)
