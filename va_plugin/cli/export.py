@@ -89,18 +89,17 @@ def main(argv: Optional[List[str]] = None) -> int:
         mesh = extract_mesh(pipeline.model, resolution=args.resolution, largest_component=args.largest_component,
                             with_color=not args.texture)
         if args.texture:
-            from va_plugin.export.texture import texture_run_mesh
+            from va_plugin.export.texture import MAX_TEXTURE_FACES, texture_run_mesh
 
             textured, report, written = texture_run_mesh(pipeline, mesh, args.output, args.texture_size, args.fusion,
                                                          args.use_inconsistency,
                                                          harmonise_views=False if args.no_harmonise else None,
-                                                         **({} if args.max_faces is None
-                                                            else {"max_faces": args.max_faces}))
+                                                         max_faces=MAX_TEXTURE_FACES if args.max_faces is None
+                                                         else args.max_faces)
             seen = report.seen / max(report.covered, 1)
             simplified = f" (simplified from {len(mesh.faces)})" if len(textured.faces) < len(mesh.faces) else ""
             print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces{simplified} "
-                  "and a "
-                  f"{args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view) written to "
+                  f"and a {args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view) written to "
                   + ", ".join(str(p) for p in written))
             return 0
         write_mesh(mesh, args.output)
