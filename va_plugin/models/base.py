@@ -40,6 +40,11 @@ class ModelConfig(InstantiateConfig):
     """Photometric loss: "l2" (the paper's eq. 13) or "l1"."""
     eval_chunk: int = 2048
     """Rays rendered at once when rendering whole images."""
+    grid_decay_weight: float = 0.0
+    """Normalised weight decay of the field's hash grids: the weight times the sum over levels of each
+    level's mean squared feature (every level counts alike whatever its size). Under Adam it pulls the
+    entries that few rays reach towards zero while those the photometric loss keeps using stay; 0 (the
+    default) turns it off. Fields without a hash grid ignore it."""
     view_appearance: ViewAppearanceConfig = field(default_factory=ViewAppearanceConfig)
     """Per-view colour correction of the training views' renders (``mode``: off, gain or affine; its
     learning rate is the "view_appearance" optimizer group). Novel views and mesh colours never use it."""
@@ -134,6 +139,11 @@ class Model(nn.Module):
     def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
         """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the view-adaptive
         regularizers), the per-view corrections' penalties and the registered hooks'."""
+        if self.config.grid_decay_weight > 0:
+            grids = self.hash_grids()
+            if grids:
+                losses["grid_decay"] = self.config.grid_decay_weight * sum(
+                    grid.level_mean_squares().sum() for grid in grids)
         field_losses = getattr(getattr(self, "field", None), "extra_losses", None)
         if field_losses is not None:
             losses.update(field_losses(outputs, batch, self.colour_loss))
@@ -144,6 +154,13 @@ class Model(nn.Module):
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
         return losses
+
+    def hash_grids(self) -> List[nn.Module]:
+        """The hash-grid encodings of the model's field (the backbone's inside a view-adaptive wrapper)."""
+        from va_plugin.fields.encodings.hash_grid import HashGridEncoding
+
+        field = getattr(self, "field", None)
+        return [m for m in field.modules() if isinstance(m, HashGridEncoding)] if field is not None else []
 
     def colour_loss(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """The model's plain photometric loss (``rgb_loss``) of rendered against target colours ``[R, 3]``."""
