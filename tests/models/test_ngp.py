@@ -159,7 +159,8 @@ def test_grid_decay_adds_the_weighted_level_means_and_pulls_the_table_to_zero(me
 
 def test_grid_decay_is_off_by_default_and_refuses_a_negative_weight(tiny_scene, tmp_path):
     trainer = _trainer(tiny_scene, tmp_path)
+    model = trainer.pipeline.model
     ray_bundle, batch = trainer.pipeline.datamanager.next_train(0)
-    assert "grid_decay" not in trainer.pipeline.model.get_loss_dict(trainer.pipeline.model.get_outputs(ray_bundle), batch)
+    assert "grid_decay" not in model.get_loss_dict(model.get_outputs(ray_bundle), batch)
     with pytest.raises(ConfigError, match="grid_decay_weight"):
         _trainer(tiny_scene, tmp_path, **{"pipeline.model.grid_decay_weight": -1.0})

@@ -137,8 +137,9 @@ class Model(nn.Module):
         return outputs
 
     def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
-        """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the view-adaptive
-        regularizers), the per-view corrections' penalties and the registered hooks'."""
+        """The losses every model shares, after its own: the grid decay (``grid_decay_weight``), the
+        field's (``extra_losses``, e.g. the view-adaptive regularizers), the per-view corrections' penalties
+        and the registered hooks'."""
         if self.config.grid_decay_weight > 0:
             grids = self.hash_grids()
             if grids:
