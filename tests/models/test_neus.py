@@ -187,3 +187,68 @@ def test_render_sharpness_must_be_positive(tiny_scene, tmp_path):
 
     with pytest.raises(ConfigError, match="render_sharpness"):
         _trainer(tiny_scene, tmp_path, **{"pipeline.model.render_sharpness": 0.0})
+
+
+def test_isotropic_rays_meet_a_sphere_in_proportion_to_its_outline():
+    from va_plugin.rays import isotropic_rays, near_far_from_sphere
+
+    torch.manual_seed(0)
+    rays = isotropic_rays(100_000, 2.0)
+    assert torch.allclose(rays.directions.norm(dim=-1), torch.ones(100_000), atol=1e-5)
+    assert float(rays.origins.norm(dim=-1).min()) > 2.0 and bool((rays.camera_indices == -1).all())
+    # every ray meets the sphere of the disk's radius; a concentric sphere of radius a is met by a fraction
+    # (a / radius)^2 of them (its outline over the disk's area), whatever the direction
+    assert bool(near_far_from_sphere(rays.origins, rays.directions, 2.0)[2].all())
+    hits = near_far_from_sphere(rays.origins, rays.directions, 0.6)[2]
+    assert float(hits.float().mean()) == pytest.approx(0.09, abs=0.004)
+    # uniform directions: no axis preferred
+    assert torch.allclose((rays.directions ** 2).mean(0), torch.full((3,), 1 / 3), atol=0.01)
+
+
+def test_projected_area_prior_measures_the_outline_and_shrinks_it(tiny_scene, tmp_path):
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.projected_area_weight": 1.0,
+                                                "pipeline.model.projected_area_rays": 4096,
+                                                "pipeline.model.projected_area_start": 0.0,
+                                                "pipeline.model.cos_anneal_fraction": 0.0})
+    model = trainer.model
+    with torch.no_grad():
+        model.variance.variance.fill_(0.6)  # inv_s = e^6: a sharp outline
+    rays, batch = trainer.pipeline.datamanager.next_train(0)
+    outputs = model.get_outputs(rays)
+    counters = model.samples_per_ray, model.probed_per_ray
+    loss = model.get_loss_dict(outputs, batch)["projected_area"]
+    assert (model.samples_per_ray, model.probed_per_ray) == counters  # the batch's figures, not the prior's
+    # against the share of the same rays on which the SDF, densely sampled, goes below zero
+    from va_plugin.rays import isotropic_rays, near_far_from_sphere
+
+    torch.manual_seed(5)
+    probe = isotropic_rays(4096, model.scene.scene_radius)
+    nears, fars, _ = near_far_from_sphere(probe.origins, probe.directions, model.scene.scene_radius)
+    t = nears + (fars - nears) * torch.linspace(0, 1, 400)
+    points = probe.origins[:, None] + probe.directions[:, None] * t[..., None]
+    outline = float((model.mesh_field(points.reshape(-1, 3)).reshape(t.shape).min(-1).values < 0).float().mean())
+    assert 0.1 < outline < 0.9
+    assert float(loss.detach()) == pytest.approx(outline, abs=0.03)
+    optimizer = torch.optim.Adam(model.field.parameters(), lr=1e-2)
+    first = float(loss.detach())
+    for _ in range(15):
+        optimizer.zero_grad()
+        loss = model.get_loss_dict(outputs, batch)["projected_area"]
+        loss.backward()
+        assert all(torch.isfinite(p.grad).all() for p in model.field.parameters() if p.grad is not None)
+        optimizer.step()
+    assert float(loss.detach()) < first - 0.01
+    # before its start no term is added
+    late = _trainer(tiny_scene, tmp_path / "late", **{"pipeline.model.projected_area_weight": 1.0,
+                                                     "pipeline.model.projected_area_start": 0.5})
+    out = late.model.get_outputs(rays)
+    assert "projected_area" not in late.model.get_loss_dict(out, batch)
+
+
+@pytest.mark.parametrize("key, value", [("projected_area_weight", -0.1), ("projected_area_rays", 0),
+                                        ("projected_area_start", 1.5)])
+def test_bad_projected_area_options_are_config_errors(key, value, tiny_scene, tmp_path):
+    from va_plugin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=key):
+        _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})

@@ -21,7 +21,7 @@ from va_plugin.model_components.neus import SingleVariance, neus_alpha, normal_s
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo
-from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
+from va_plugin.rays import RayBundle, RaySamples, isotropic_rays, near_far_from_sphere
 from va_plugin.utils.stages import stage, timed
 
 
@@ -84,6 +84,18 @@ class NeuSModelConfig(ModelConfig):
     """Scale of the random step of the smoothness prior (scene units; the object fits a sphere of 1)."""
     smoothness_points: int = 256
     """Most surface points per batch the smoothness prior is evaluated at."""
+    projected_area_weight: float = 0.0
+    """Weight of the projected-area prior (0 turns it off): the mean opacity of ``projected_area_rays``
+    rays from random directions through the scene sphere (:func:`va_plugin.rays.isotropic_rays`), i.e. the
+    object's silhouette area averaged over every viewing direction. Only rays that graze the surface
+    carry a gradient, so it moves outlines, not insides: of the shapes the input silhouettes allow it
+    prefers the one with the smallest outline from other directions. Four views carve a round object
+    towards the square their silhouettes allow; edges a view sees on its outline stay, since the mask
+    loss holds them (unlike ``smoothness_weight``, which rounds them too)."""
+    projected_area_rays: int = 128
+    """Random rays per step of the projected-area prior."""
+    projected_area_start: float = 0.1
+    """Share of the step budget before the projected-area prior starts."""
     trim_fraction: float = 0.0
     """Robust colour and mask losses: each batch drops this share of its rays with the largest error
     from the loss (0: plain means). For generated views that are wrong in patches."""
@@ -107,6 +119,11 @@ class NeuSModel(Model):
         if config.smoothness_weight < 0 or config.smoothness_radius <= 0 or config.smoothness_points < 1:
             raise ConfigError("smoothness_weight must be >= 0, smoothness_radius > 0 and smoothness_points >= 1, got "
                               f"{config.smoothness_weight}, {config.smoothness_radius} and {config.smoothness_points}")
+        if config.projected_area_weight < 0 or config.projected_area_rays < 1 or \
+                not 0.0 <= config.projected_area_start <= 1.0:
+            raise ConfigError("projected_area_weight must be >= 0, projected_area_rays >= 1 and "
+                              f"projected_area_start in [0, 1], got {config.projected_area_weight}, "
+                              f"{config.projected_area_rays} and {config.projected_area_start}")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
         if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
@@ -339,7 +356,22 @@ class NeuSModel(Model):
             loss["view_deformation"] = self.view_deformation.loss()
         if cfg.smoothness_weight > 0 and "surface_points" in outputs:
             loss["smoothness"] = cfg.smoothness_weight * self._smoothness(outputs)
+        if cfg.projected_area_weight > 0 and self.training and \
+                self.step >= cfg.projected_area_start * self.scene.max_steps:
+            loss["projected_area"] = cfg.projected_area_weight * self._projected_area(outputs)
         return self.apply_extra_losses(loss, outputs, batch)
+
+    def _projected_area(self, outputs) -> torch.Tensor:
+        """The mean opacity of random rays from every direction (the projected-area prior); the batch's
+        sample counters keep the training rays' figures."""
+        device = outputs["accumulation"].device
+        rays = isotropic_rays(self.config.projected_area_rays, self.scene.scene_radius, device=device)
+        counters = self.samples_per_ray, self.probed_per_ray
+        try:
+            accumulation = self.get_outputs(rays)["accumulation"]
+        finally:
+            self.samples_per_ray, self.probed_per_ray = counters
+        return accumulation.mean()
 
     def _smoothness(self, outputs) -> torch.Tensor:
         """The normal-smoothness prior at (a random subset of) the batch's surface points."""
