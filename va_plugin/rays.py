@@ -96,15 +96,14 @@ def near_far_from_sphere(origins: torch.Tensor, directions: torch.Tensor, radius
     return near[:, None], far[:, None], hits
 
 
-def isotropic_rays(n_rays: int, radius: float, generator: Optional[torch.Generator] = None,
-                   device: torch.device | str = "cpu") -> RayBundle:
+def isotropic_rays(n_rays: int, radius: float, device: torch.device | str = "cpu") -> RayBundle:
     """``n_rays`` novel-view rays (camera index -1) through a sphere of ``radius`` at the origin, uniform
     over the lines that meet it: a direction uniform on the unit sphere, then a point uniform on the disk of
     ``radius`` through the origin across that direction. The mean opacity of such rays is the object's
     silhouette area averaged over all viewing directions, divided by the disk's area (for a convex body a
     quarter of its surface area, by Cauchy's formula). Origins sit ``2 radius`` back from the disk, outside
     the sphere."""
-    directions = torch.randn(n_rays, 3, generator=generator).to(device)
+    directions = torch.randn(n_rays, 3).to(device)
     directions = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-6)
     # an axis not parallel to the direction, then two unit vectors across it
     helper = torch.zeros_like(directions)
@@ -114,7 +113,7 @@ def isotropic_rays(n_rays: int, radius: float, generator: Optional[torch.Generat
     u = torch.cross(directions, helper, dim=-1)
     u = u / u.norm(dim=-1, keepdim=True).clamp_min(1e-6)
     v = torch.cross(directions, u, dim=-1)
-    uniform = torch.rand(n_rays, 2, generator=generator).to(device)
+    uniform = torch.rand(n_rays, 2).to(device)
     r = radius * uniform[:, :1].sqrt()
     angle = 2.0 * torch.pi * uniform[:, 1:]
     points = r * (angle.cos() * u + angle.sin() * v)

@@ -18,15 +18,15 @@ from va_plugin.rays import RayBundle
 def render_view(model, cameras: Cameras, index: int, as_view: int = -1, keys=None):
     """RGB ``[H, W, 3]`` float of one camera, rendered with the canonical (novel-view) path, or with
     training view ``as_view``'s own path (its branch, for view-adaptive models) when ``as_view >= 0``.
-    With ``keys`` (colour outputs of the model, e.g. ``("rgb", "rgb_canonical")``), a list of those
-    images from the same render pass."""
+    With ``keys`` (outputs of the model, e.g. ``("rgb", "rgb_canonical")`` or ``("accumulation",)``), a list
+    of those images ``[H, W, C]`` from the same render pass."""
     cameras = cameras.to(next(model.parameters()).device)
     views, rows, cols = cameras.pixel_grid(index)
     origins, directions = cameras.generate_rays(views, rows, cols)
     rays = RayBundle(origins, directions, torch.full_like(views, as_view))
     wanted = ("rgb",) if keys is None else tuple(keys)
     outputs = model.render_rays(rays, keys=wanted)
-    images = [outputs[k].reshape(cameras.height, cameras.width, 3).cpu().numpy() for k in wanted]
+    images = [outputs[k].reshape(cameras.height, cameras.width, -1).cpu().numpy() for k in wanted]
     return images[0] if keys is None else images
 
 

@@ -11,7 +11,7 @@ import numpy as np
 import torch
 
 from va_plugin.cli.run import load_run
-from va_plugin.rays import RayBundle
+from va_plugin.export.render import render_view
 
 torch.set_num_threads(1)
 
@@ -19,12 +19,8 @@ torch.set_num_threads(1)
 def split(model, dataset):
     extra, missing = [], []
     for i in range(len(dataset)):
-        cams = dataset.cameras
-        views, rows, cols = cams.pixel_grid(i)
-        origins, directions = cams.generate_rays(views, rows, cols)
-        out = model.render_rays(RayBundle(origins, directions, torch.full_like(views, -1)), keys=("accumulation",))
-        acc = out["accumulation"].reshape(cams.height, cams.width).numpy()
-        m = dataset.masks[i].numpy().reshape(cams.height, cams.width)
+        acc = render_view(model, dataset.cameras, i, keys=("accumulation",))[0][..., 0]
+        m = dataset.masks[i].numpy().reshape(acc.shape)
         area = max(m.sum(), 1.0)
         extra.append(float(np.clip(acc - m, 0, None).sum() / area))
         missing.append(float(np.clip(m - acc, 0, None).sum() / area))

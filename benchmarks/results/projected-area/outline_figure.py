@@ -11,7 +11,7 @@ import torch
 
 from va_plugin.cli.run import load_run
 from va_plugin.data.images import write_image
-from va_plugin.rays import RayBundle
+from va_plugin.export.render import render_view
 
 torch.set_num_threads(1)
 out, view = Path(sys.argv[1]), int(sys.argv[2])
@@ -22,16 +22,12 @@ with torch.no_grad():
         for run in group.split(","):
             pipeline, _ = load_run(Path(run), device="cpu")
             test = pipeline.datamanager.test
-            cams = test.cameras
-            views, r, c = cams.pixel_grid(view)
-            o, d = cams.generate_rays(views, r, c)
-            acc = pipeline.model.render_rays(RayBundle(o, d, torch.full_like(views, -1)), keys=("accumulation",))
-            acc = acc["accumulation"].reshape(cams.height, cams.width).numpy()
-            mask = test.masks[view].numpy().reshape(cams.height, cams.width)
+            acc = render_view(pipeline.model, test.cameras, view, keys=("accumulation",))[0][..., 0]
+            mask = test.masks[view].numpy().reshape(acc.shape)
             both = np.minimum(acc, mask)
             fat = np.clip(acc - mask, 0, 1)
             thin = np.clip(mask - acc, 0, 1)
-            tile = np.ones((cams.height, cams.width, 3), np.float32)
+            tile = np.ones(acc.shape + (3,), np.float32)
             tile -= both[..., None] * 0.4
             tile -= fat[..., None] * np.array([0.0, 0.9, 0.9], np.float32)
             tile -= thin[..., None] * np.array([0.9, 0.9, 0.0], np.float32)
