@@ -252,3 +252,65 @@ def test_bad_projected_area_options_are_config_errors(key, value, tiny_scene, tm
 
     with pytest.raises(ConfigError, match=key):
         _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})
+
+
+def test_surface_crossings_hand_computed():
+    from va_plugin.model_components.neus import surface_crossings
+
+    torch.manual_seed(0)
+    sphere = lambda p: p.norm(dim=-1) - 0.5  # noqa: E731
+    two_spheres = lambda p: torch.minimum((p - torch.tensor([-0.5, 0.0, 0.0])).norm(dim=-1),  # noqa: E731
+                                          (p - torch.tensor([0.5, 0.0, 0.0])).norm(dim=-1)) - 0.3
+    # along x through the centre, through an off-centre chord, and past the sphere by 0.3 (ten spacings)
+    origins = torch.tensor([[-2.0, 0.0, 0.0], [-2.0, 0.3, 0.0], [-2.0, 0.8, 0.0]])
+    directions = torch.tensor([[1.0, 0.0, 0.0]]).expand(3, 3)
+    nears, fars = torch.full((3, 1), 1.0), torch.full((3, 1), 3.0)  # chords from x = -1 to 1, spacing 2 / 64
+    assert surface_crossings(sphere, origins, directions, nears, fars, 64).tolist() == pytest.approx(
+        [1.0, 1.0, 0.0], abs=0.01)
+    # the line through both spheres leaves the surface and enters it again: two; a line of zero length: none
+    crossings = surface_crossings(two_spheres, origins, directions, nears, fars, 64)
+    assert [float(crossings[0]), float(crossings[2])] == pytest.approx([2.0, 0.0], abs=0.01)
+    assert float(surface_crossings(sphere, origins[:1], directions[:1], nears[:1], nears[:1], 8)) == 0.0
+
+
+def test_surface_crossings_gradient_fills_a_gap_and_leaves_a_convex_inside_alone():
+    from va_plugin.model_components.neus import surface_crossings
+
+    torch.manual_seed(0)
+    offset = torch.zeros(1, requires_grad=True)  # added to the SDF at the samples: raising it shrinks the shape
+    # a line through two touching-but-apart spheres: the gap between them is pushed inside (offset down)
+    two_spheres = lambda p: torch.minimum((p - torch.tensor([-0.32, 0.0, 0.0])).norm(dim=-1),  # noqa: E731
+                                          (p - torch.tensor([0.32, 0.0, 0.0])).norm(dim=-1)) - 0.3 + offset * (
+        p[..., 0].abs() < 0.05)
+    origin, direction = torch.tensor([[-2.0, 0.0, 0.0]]), torch.tensor([[1.0, 0.0, 0.0]])
+    near, far = torch.full((1, 1), 1.0), torch.full((1, 1), 3.0)
+    surface_crossings(two_spheres, origin, direction, near, far, 64).sum().backward()
+    assert float(offset.grad) > 0.5  # lowering the SDF in the gap (filling it) lowers the count
+    # deep inside a convex body the indicator is saturated: no gradient there
+    offset.grad = None
+    inner = lambda p: p.norm(dim=-1) - 0.6 + offset * (p.norm(dim=-1) < 0.2)  # noqa: E731
+    surface_crossings(inner, origin, direction, near, far, 64).sum().backward()
+    assert abs(float(offset.grad)) < 1e-3
+
+
+def test_crossings_prior_is_a_finite_loss_after_its_start(tiny_scene, tmp_path):
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.crossings_weight": 1.0,
+                                                "pipeline.model.projected_area_start": 0.0})
+    model = trainer.model
+    rays, batch = trainer.pipeline.datamanager.next_train(0)
+    loss = model.get_loss_dict(model.get_outputs(rays), batch)["crossings"]
+    assert torch.isfinite(loss) and 0.0 <= float(loss.detach()) <= model.config.crossings_samples / 2
+    loss.backward()
+    grads = [p.grad for p in model.field.parameters() if p.grad is not None]
+    assert grads and all(torch.isfinite(g).all() for g in grads) and any(float(g.abs().max()) > 0 for g in grads)
+    late = _trainer(tiny_scene, tmp_path / "late", **{"pipeline.model.crossings_weight": 1.0,
+                                                     "pipeline.model.projected_area_start": 0.5})
+    assert "crossings" not in late.model.get_loss_dict(late.model.get_outputs(rays), batch)
+
+
+@pytest.mark.parametrize("key, value", [("crossings_weight", -0.1), ("crossings_samples", 1)])
+def test_bad_crossings_options_are_config_errors(key, value, tiny_scene, tmp_path):
+    from va_plugin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match=key):
+        _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+from typing import Callable
 
 import torch
 from torch import nn
@@ -98,3 +99,25 @@ def normal_smoothness(gradients: torch.Tensor, perturbed_gradients: torch.Tensor
     a = torch.nn.functional.normalize(gradients, dim=-1, eps=1e-6)
     b = torch.nn.functional.normalize(perturbed_gradients, dim=-1, eps=1e-6)
     return (1.0 - (a * b).sum(-1).clamp(-1.0, 1.0)).mean()
+
+
+def surface_crossings(sdf_fn: Callable[[torch.Tensor], torch.Tensor], origins: torch.Tensor,
+                      directions: torch.Tensor, nears: torch.Tensor, fars: torch.Tensor,
+                      n_samples: int) -> torch.Tensor:
+    """Half the number of times each line crosses the zero level set of ``sdf_fn``, ``[n_rays]``.
+
+    The lines run from ``nears`` to ``fars`` (``[n_rays, 1]``) along ``origins + t directions``; the SDF
+    (negative inside) is taken at ``n_samples`` stratified points on each, turned into a soft inside
+    indicator ``sigmoid(-sdf / w)`` with ``w`` the points' spacing, and the indicator's total variation is
+    halved: 1 for a line that goes through a convex body, 2 for one that leaves the surface and enters it
+    again, 0 for one that misses. Its gradient sits at the indicator's local extrema: a grazing line's
+    peak (pushed out) and the gap between two entries (pushed in). ``sdf_fn`` maps ``[..., 3]`` to
+    ``[...]``. A line of zero length (a miss) has a saturated indicator and contributes nothing."""
+    n_rays = origins.shape[0]
+    offsets = torch.arange(n_samples, device=origins.device, dtype=origins.dtype)
+    u = (offsets + torch.rand(n_rays, n_samples, device=origins.device, dtype=origins.dtype)) / n_samples
+    t = nears + (fars - nears) * u
+    width = ((fars - nears) / n_samples).clamp_min(1e-6)
+    points = origins[:, None, :] + directions[:, None, :] * t[..., None]
+    inside = torch.sigmoid(-sdf_fn(points) / width)
+    return 0.5 * (inside[:, 1:] - inside[:, :-1]).abs().sum(-1)

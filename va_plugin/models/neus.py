@@ -17,7 +17,8 @@ from va_plugin.model_components import losses, renderers
 from va_plugin.model_components.camera_opt import CameraOptimizerConfig
 from va_plugin.model_components.view_deformation import ViewDeformationConfig
 from va_plugin.model_components.robust import per_ray_mask_error, per_ray_rgb_error, trimmed_mean
-from va_plugin.model_components.neus import SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha
+from va_plugin.model_components.neus import (SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha,
+                                             surface_crossings)
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo
@@ -95,7 +96,17 @@ class NeuSModelConfig(ModelConfig):
     projected_area_rays: int = 128
     """Random rays per step of the projected-area prior."""
     projected_area_start: float = 0.1
-    """Share of the step budget before the projected-area prior starts."""
+    """Share of the step budget before the projected-area prior (and ``crossings_weight``) starts."""
+    crossings_weight: float = 0.0
+    """Weight of the crossings prior (0 turns it off): along ``projected_area_rays`` random lines through the
+    scene sphere (the same kind of lines as the projected-area prior), half the number of times each line
+    crosses the surface, counted as the total variation of a soft inside-indicator at
+    ``crossings_samples`` stratified points. By Crofton's formula its mean is proportional to the surface
+    area. On a convex body it equals the projected-area prior's opacity; unlike that prior it also charges
+    a line that leaves the surface and enters it again, so it fills dents inside the outline (and any
+    concavity that no input's mask or colour holds open)."""
+    crossings_samples: int = 64
+    """Stratified points per line of the crossings prior; the soft indicator's width is their spacing."""
     trim_fraction: float = 0.0
     """Robust colour and mask losses: each batch drops this share of its rays with the largest error
     from the loss (0: plain means). For generated views that are wrong in patches."""
@@ -124,6 +135,9 @@ class NeuSModel(Model):
             raise ConfigError("projected_area_weight must be >= 0, projected_area_rays >= 1 and "
                               f"projected_area_start in [0, 1], got {config.projected_area_weight}, "
                               f"{config.projected_area_rays} and {config.projected_area_start}")
+        if config.crossings_weight < 0 or config.crossings_samples < 2:
+            raise ConfigError("crossings_weight must be >= 0 and crossings_samples >= 2, got "
+                              f"{config.crossings_weight} and {config.crossings_samples}")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
         if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
@@ -356,9 +370,11 @@ class NeuSModel(Model):
             loss["view_deformation"] = self.view_deformation.loss()
         if cfg.smoothness_weight > 0 and "surface_points" in outputs:
             loss["smoothness"] = cfg.smoothness_weight * self._smoothness(outputs)
-        if cfg.projected_area_weight > 0 and self.training and \
-                self.step >= cfg.projected_area_start * self.scene.max_steps:
-            loss["projected_area"] = cfg.projected_area_weight * self._projected_area(outputs)
+        if self.training and self.step >= cfg.projected_area_start * self.scene.max_steps:
+            if cfg.projected_area_weight > 0:
+                loss["projected_area"] = cfg.projected_area_weight * self._projected_area(outputs)
+            if cfg.crossings_weight > 0:
+                loss["crossings"] = cfg.crossings_weight * self._crossings(outputs["accumulation"].device)
         return self.apply_extra_losses(loss, outputs, batch)
 
     def _projected_area(self, outputs) -> torch.Tensor:
@@ -372,6 +388,15 @@ class NeuSModel(Model):
         finally:
             self.samples_per_ray, self.probed_per_ray = counters
         return accumulation.mean()
+
+    def _crossings(self, device: torch.device) -> torch.Tensor:
+        """Half the mean number of surface crossings of random lines through the scene sphere (the
+        crossings prior), from stratified samples of the SDF on each line's chord."""
+        cfg = self.config
+        rays = isotropic_rays(cfg.projected_area_rays, self.scene.scene_radius, device=device)
+        nears, fars, _ = near_far_from_sphere(rays.origins, rays.directions, self.scene.scene_radius)
+        return surface_crossings(lambda p: self.field.geometry(p)[0][..., 0], rays.origins, rays.directions,
+                                 nears, fars, cfg.crossings_samples).mean()
 
     def _smoothness(self, outputs) -> torch.Tensor:
         """The normal-smoothness prior at (a random subset of) the batch's surface points."""
