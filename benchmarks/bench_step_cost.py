@@ -4,10 +4,12 @@ Each variant's trainer is built once; then the variants take one step each in tu
 so that all of them see the same machine load; the first round is discarded and the median is printed.
 By default the trainers start at their last step, so every schedule is at its end (all hash-grid levels
 open, a view-adaptive method in its last phase: the most expensive step of a run). The state is untrained,
-so the SDF band keeps more samples than a trained run's would.
+so the SDF band keeps more samples than a trained run's would; with ``--from-run RUN`` every trainer starts
+from that finished run's last checkpoint instead (the variants must then share its parameters: options
+that change only losses or sampling), which times the late steps of a real run.
 
     python benchmarks/bench_step_cost.py --data SCENE [--variants neus neus:mlp "neus+pipeline.model.n_importance=16"]
-        [--repeats 6] [--threads 1] [--at-start]
+        [--repeats 6] [--threads 1] [--at-start | --from-run RUN]
 
 A variant is METHOD[:PRESET] followed by any number of ``+PATH=VALUE`` config overrides.
 """
@@ -24,6 +26,7 @@ import torch
 
 from va_plugin.cli.common import friendly_errors
 from va_plugin.config import apply_override
+from va_plugin.engine.trainer import load_checkpoint
 from va_plugin.errors import ConfigError
 from va_plugin.registry import get_method
 
@@ -48,13 +51,20 @@ def main(argv=None) -> int:
     parser.add_argument("--repeats", type=int, default=6)
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--at-start", action="store_true", help="time the first steps' state (schedules at step 0)")
+    parser.add_argument("--from-run", type=Path, default=None,
+                        help="a finished run folder of the same scene: every trainer starts from its last checkpoint")
     args = parser.parse_args(argv)
     if args.repeats < 2:
         raise ConfigError("--repeats must be at least 2 (the first round is discarded)")
+    if args.at_start and args.from_run is not None:
+        raise ConfigError("--at-start and --from-run exclude each other")
+    checkpoint = load_checkpoint(args.from_run) if args.from_run is not None else None
     torch.set_num_threads(args.threads)
     with tempfile.TemporaryDirectory() as tmp:
         trainers = {v: build_trainer(v, args.data, Path(tmp) / str(i)) for i, v in enumerate(args.variants)}
         for trainer in trainers.values():
+            if checkpoint is not None:
+                trainer.load_state(checkpoint)
             if not args.at_start:  # the pipeline sets the schedules from trainer.step before each step
                 trainer.step = trainer.config.max_steps - 1
         times = {v: [] for v in trainers}

@@ -314,3 +314,30 @@ def test_bad_crossings_options_are_config_errors(key, value, tiny_scene, tmp_pat
 
     with pytest.raises(ConfigError, match=key):
         _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})
+
+
+def test_surface_crossings_band_matches_every_point_with_a_graph():
+    from va_plugin.model_components.neus import surface_crossings
+    from va_plugin.rays import isotropic_rays, near_far_from_sphere
+
+    centre = torch.tensor([0.1, -0.05, 0.0], requires_grad=True)
+    radius = torch.tensor(0.4, requires_grad=True)
+    wobble = torch.tensor(0.05, requires_grad=True)
+
+    def sdf(p):  # a sphere with a ripple: lines cross it up to four times
+        q = p - centre
+        return q.norm(dim=-1) - radius + wobble * torch.sin(12.0 * q[..., 0])
+
+    results = []
+    for band in (None, 6.0):
+        torch.manual_seed(3)
+        rays = isotropic_rays(256, 0.9)
+        nears, fars, _ = near_far_from_sphere(rays.origins, rays.directions, 0.9)
+        value = surface_crossings(sdf, rays.origins, rays.directions, nears, fars, 64, band=band).mean()
+        grads = torch.autograd.grad(value, (centre, radius, wobble))
+        results.append((value.detach(), grads))
+    (full, full_grads), (banded, banded_grads) = results
+    assert float(banded) == pytest.approx(float(full), abs=1e-6)
+    for a, b in zip(full_grads, banded_grads):
+        assert torch.allclose(a, b, rtol=0.02, atol=1e-3)
+    assert float(full_grads[1]) > 0.1  # a larger sphere is crossed by more lines

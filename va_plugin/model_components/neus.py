@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Callable
+from typing import Callable, Optional
 
 import torch
 from torch import nn
@@ -103,7 +103,7 @@ def normal_smoothness(gradients: torch.Tensor, perturbed_gradients: torch.Tensor
 
 def surface_crossings(sdf_fn: Callable[[torch.Tensor], torch.Tensor], origins: torch.Tensor,
                       directions: torch.Tensor, nears: torch.Tensor, fars: torch.Tensor,
-                      n_samples: int) -> torch.Tensor:
+                      n_samples: int, band: Optional[float] = 6.0) -> torch.Tensor:
     """Half the number of times each line crosses the zero level set of ``sdf_fn``, ``[n_rays]``.
 
     The lines run from ``nears`` to ``fars`` (``[n_rays, 1]``) along ``origins + t directions``; the SDF
@@ -112,12 +112,26 @@ def surface_crossings(sdf_fn: Callable[[torch.Tensor], torch.Tensor], origins: t
     halved: 1 for a line that goes through a convex body, 2 for one that leaves the surface and enters it
     again, 0 for one that misses. Its gradient sits at the indicator's local extrema: a grazing line's
     peak (pushed out) and the gap between two entries (pushed in). ``sdf_fn`` maps ``[..., 3]`` to
-    ``[...]``. A line of zero length (a miss) has a saturated indicator and contributes nothing."""
+    ``[...]``. A line of zero length (a miss) has a saturated indicator and contributes nothing.
+
+    With ``band`` (and autograd recording), the SDF is first taken at every point without a graph, and
+    only the points with ``|sdf| < band w`` are taken again with one: the value is the same, and the
+    gradient leaves out the saturated points, whose share is below ``sigmoid'(band)`` (0.25% of the peak at
+    6). Most points of most lines are far from the surface, so this saves most of the backward pass.
+    ``None`` takes every point with a graph."""
     n_rays = origins.shape[0]
     offsets = torch.arange(n_samples, device=origins.device, dtype=origins.dtype)
     u = (offsets + torch.rand(n_rays, n_samples, device=origins.device, dtype=origins.dtype)) / n_samples
     t = nears + (fars - nears) * u
     width = ((fars - nears) / n_samples).clamp_min(1e-6)
     points = origins[:, None, :] + directions[:, None, :] * t[..., None]
-    inside = torch.sigmoid(-sdf_fn(points) / width)
+    if band is None or not torch.is_grad_enabled():
+        sdf = sdf_fn(points)
+    else:
+        with torch.no_grad():
+            sdf = sdf_fn(points)
+        near = (sdf.abs() < band * width).nonzero(as_tuple=True)
+        if near[0].numel() > 0:
+            sdf = sdf.index_put(near, sdf_fn(points[near]))
+    inside = torch.sigmoid(-sdf / width)
     return 0.5 * (inside[:, 1:] - inside[:, :-1]).abs().sum(-1)

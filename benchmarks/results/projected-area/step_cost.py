@@ -39,7 +39,7 @@ def trainer(tag, overrides):
     return t
 
 
-plain = trainer("plain", [])
+plain = trainer("plain", ["pipeline.model.projected_area_weight=0"])  # the default has the prior since 2026-11-26
 prior = trainer("prior", [f"pipeline.model.projected_area_weight={weight}", "pipeline.model.projected_area_start=0"])
 times = {"plain": [], "prior": []}
 for block in range(steps // 10):
