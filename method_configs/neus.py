@@ -25,10 +25,11 @@ def neus_config() -> TrainerConfig:
         method_name="neus",
         pipeline=PipelineConfig(
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
-            # the projected-area prior at 0.05 since 2026-11-26: on GSO-10 at level 2 PSNR +0.62 dB, CD x0.749
-            # against none (benchmarks/RESULTS.md, "The projected-area prior")
+            # the crossings prior at 0.05 since 2026-11-27, in place of the projected-area prior (0.05 from
+            # 2026-11-26, which gave PSNR +0.62 dB and CD x0.749 against neither): it is the same on a convex
+            # body and also fills dents inside the outline (benchmarks/RESULTS.md, "The crossings prior")
             model=NeuSModelConfig(field=HashSDFFieldConfig(), n_samples=32, n_importance=32, up_sample_steps=2,
-                                  projected_area_weight=0.05),
+                                  crossings_weight=0.05),
         ),
         # inv_s = exp(10 v): at 1e-3 it reached only ~90-130 in 1000 steps (renders with a blurred fringe);
         # at 5e-3 ~200-250, with LPIPS -11..-14% and CD -8..-20% on the GSO objects (benchmarks/RESULTS.md)
@@ -45,10 +46,10 @@ def neus_config() -> TrainerConfig:
 
 
 def _mlp(config: TrainerConfig) -> None:
-    """The positional-encoding NeuS that was the default until 2026-11-24 (without the projected-area prior)."""
+    """The positional-encoding NeuS that was the default until 2026-11-24 (without the crossings prior)."""
     config.pipeline.model.field = SDFFieldConfig(sdf_width=128, sdf_layers=4, color_width=128, color_layers=2,
                                                  geo_feature_dim=64)
-    config.pipeline.model.projected_area_weight = 0.0
+    config.pipeline.model.crossings_weight = 0.0
     config.optimizers["fields"].lr = 2e-3
     config.optimizers["variance"].lr = 2e-3
     config.max_steps = 500

@@ -39,7 +39,8 @@ def tiny_config(method: str, scene: Path, out: Path, steps: int = 2, **overrides
     config.device = "cpu"
     shrink = {"pipeline.datamanager.rays_per_batch": 32}
     model = config.pipeline.model
-    for name, value in (("n_samples", 8), ("n_importance", 8), ("eval_chunk", 256), ("projected_area_rays", 8)):
+    for name, value in (("n_samples", 8), ("n_importance", 8), ("eval_chunk", 256), ("projected_area_rays", 8),
+                        ("crossings_samples", 16)):
         if hasattr(model, name):
             shrink[f"pipeline.model.{name}"] = value
     shrink.update(overrides)
