@@ -3,7 +3,8 @@ steps each, alternately) so that a busy machine slows both alike. Both train the
 seed with the default config at the default budget; the prior starts at step 0 here, so every step pays it.
 With RUN (a finished run folder of that scene), both start from its last checkpoint instead, to time the
 late steps, where the object's outline (and so the share of the prior's rays that meet it) is final.
-(benchmarks/bench_step_cost.py does the same for any variants from untrained states, one step at a time.)
+(benchmarks/bench_step_cost.py does the same for any variants, one step at a time, from untrained states or,
+with --from-run, from a finished run; this script stays as the record of the figures taken with it.)
 Usage: python step_cost.py SCENE_DIR [STEPS] [WEIGHT] [RUN]
 """
 import sys
