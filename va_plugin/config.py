@@ -125,7 +125,7 @@ _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
     "color_grid_levels", "color_layers", "consistent_colour_cast", "consistent_residual_db", "diagnostics_scale",
     "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",
     "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "mesh_smoothing", "min_sample_weight",
-    "n_importance", "num_threads", "sdf_layers", "shared_colour_weight", "shared_lr_scale",
+    "n_importance", "num_threads", "schedule_steps", "sdf_layers", "shared_colour_weight", "shared_lr_scale",
     "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels", "threshold", "up_sample_steps",
     "warmup_steps", "weight_decay"})
 _UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "regularizers_shared_scale", "train_until"})

@@ -4,7 +4,7 @@ import pytest
 import torch
 
 from conftest import tiny_config
-from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback
+from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
 from va_plugin.engine.trainer import atomic_save, list_checkpoints, load_checkpoint, make_adam
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.registry import discover_methods
@@ -145,3 +145,51 @@ def test_fused_adam_matches_the_plain_update():
     for fused, plain, first in zip(runs[0], runs[1], start):
         assert not torch.equal(plain, first)
         assert torch.allclose(fused, plain, rtol=1e-5, atol=1e-6)
+
+
+def test_schedule_horizon_compresses_shorter_budgets_and_caps_longer_ones():
+    from va_plugin.engine.trainer import TrainerConfig, schedule_horizon
+
+    assert schedule_horizon(TrainerConfig(max_steps=4000)) == 4000
+    assert schedule_horizon(TrainerConfig(max_steps=4000, schedule_steps=2000)) == 2000
+    assert schedule_horizon(TrainerConfig(max_steps=500, schedule_steps=2000)) == 500
+
+
+def test_steps_past_the_schedule_continue_the_shorter_run_at_its_final_rates(tiny_scene, tmp_path):
+    """With ``schedule_steps=3`` a 6-step run is, for its first 3 steps, the 3-step run bit for bit (same
+    learning rates, grid levels and model schedules); after them every learning rate stays at the
+    schedule's final value."""
+    short = tiny_config("neus", tiny_scene, tmp_path / "short", steps=3, **{"scheduler.warmup_steps": 1}).setup()
+    short.train()
+    seen = []
+
+    def record_rates(step, attributes):
+        seen.append((step, attributes.horizon, [g["lr"] for g in longer.optimizer.param_groups]))
+
+    longer = tiny_config("neus", tiny_scene, tmp_path / "long", steps=6, checkpoint_every=3,
+                         **{"scheduler.warmup_steps": 1, "schedule_steps": 3}).setup()
+    assert longer.model.scene.max_steps == 3
+    longer.callbacks.append(TrainingCallback(record_rates, AFTER_STEP))
+    checkpoint_at_3 = {}
+
+    def keep(step, attributes):
+        if step == 2:
+            checkpoint_at_3.update(_params(longer))
+
+    longer.callbacks.append(TrainingCallback(keep, AFTER_STEP))
+    longer.train()
+    a = _params(short)
+    assert all(torch.equal(a[k], checkpoint_at_3[k]) for k in a), "the first 3 steps differ from the 3-step run"
+    final = [longer.config.optimizers[g["name"]].lr * longer.config.scheduler.final_fraction
+             for g in longer.optimizer.param_groups]
+    assert [h for _, h, _ in seen] == [3] * 6
+    for step, _, rates in seen[3:]:
+        assert rates == pytest.approx(final), f"step {step}: rates {rates} are not the final ones {final}"
+    assert seen[0][2] != pytest.approx(final)
+
+
+def test_negative_schedule_steps_is_refused(tiny_scene, tmp_path):
+    config = tiny_config("neus", tiny_scene, tmp_path, steps=2)
+    config.schedule_steps = -5
+    with pytest.raises(ConfigError, match="schedule_steps"):
+        config.setup()

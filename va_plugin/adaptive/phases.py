@@ -116,7 +116,7 @@ def phase_callback(field: "ViewAdaptiveField") -> TrainingCallback:
     cfg = field.config
 
     def switch(step: int, attributes: TrainingCallbackAttributes) -> Dict[str, float]:
-        wanted = phase_at(step, attributes.max_steps, cfg.pretrain_fraction, cfg.branch_fraction)
+        wanted = phase_at(step, attributes.horizon, cfg.pretrain_fraction, cfg.branch_fraction)
         if field.branches is None or bool(field.skipped):
             wanted = PRETRAIN
         elif wanted > PRETRAIN and field.current_phase == PRETRAIN and cfg.skip_consistent_scenes:

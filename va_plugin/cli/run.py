@@ -6,7 +6,7 @@ import copy
 from pathlib import Path
 from typing import Any, Dict, Optional, Tuple
 
-from va_plugin.engine.trainer import load_checkpoint
+from va_plugin.engine.trainer import load_checkpoint, schedule_horizon
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.pipelines.base import Pipeline
 from va_plugin.utils.device import pick_device
@@ -25,7 +25,7 @@ def load_run(run_dir: Path, device: Optional[str] = None) -> Tuple[Pipeline, Dic
                               "the run diverged; retrain it (or resume from a checkpoint before the divergence)")
     config = copy.deepcopy(config)
     torch_device = pick_device(device if device is not None else "auto")
-    pipeline = config.pipeline.setup(device=torch_device, max_steps=config.max_steps)
+    pipeline = config.pipeline.setup(device=torch_device, max_steps=schedule_horizon(config))
     try:
         pipeline.model.load_state_dict(state["model"])
     except RuntimeError as exc:

@@ -32,6 +32,13 @@ class TrainingCallbackAttributes:
     """Whether the run shows progress (and so may print)."""
     announce: Callable[..., None]
     """``announce(step, message, **fields)``: a console line (with progress) and a metrics.jsonl record."""
+    schedule_steps: Optional[int] = None
+    """The step at which the run's schedules end (``TrainerConfig.schedule_steps``); None: ``max_steps``."""
+
+    @property
+    def horizon(self) -> int:
+        """Steps over which schedules (the adaptive phases, ...) run."""
+        return self.max_steps if self.schedule_steps is None else int(self.schedule_steps)
 
 
 @dataclass

@@ -45,6 +45,11 @@ class TrainerConfig(InstantiateConfig):
     """Learning-rate schedule shared by every group."""
     max_steps: int = 2000
     """Training steps (the step budget)."""
+    schedule_steps: int = 0
+    """Steps over which every schedule runs (learning-rate decay, grid levels opening, priors' starts,
+    annealing, the adaptive phases); 0: ``max_steps``. A shorter budget compresses the schedules to
+    ``max_steps``; a longer one trains its steps past ``schedule_steps`` at the schedules' final values
+    (see :meth:`schedule_horizon`)."""
     seed: int = 42
     """Seed of every random generator (the paper's 42)."""
     device: str = "auto"
@@ -67,6 +72,13 @@ class TrainerConfig(InstantiateConfig):
     """Show a progress bar."""
     health: HealthConfig = field(default_factory=HealthConfig)
     """What counts as a bad step (non-finite, blow-up) and how the run recovers from it."""
+
+
+def schedule_horizon(config: "TrainerConfig") -> int:
+    """The step at which a run's schedules end: ``min(max_steps, schedule_steps)``, or ``max_steps`` when
+    ``schedule_steps`` is 0."""
+    steps = int(config.max_steps)
+    return min(steps, int(config.schedule_steps)) if int(getattr(config, "schedule_steps", 0)) > 0 else steps
 
 
 def seed_everything(seed: int) -> None:
@@ -140,6 +152,8 @@ class Trainer:
         self.config = config
         if config.max_steps < 1:
             raise ConfigError(f"max_steps must be at least 1, got {config.max_steps}")
+        if config.schedule_steps < 0:
+            raise ConfigError(f"schedule_steps must be >= 0 (0: max_steps), got {config.schedule_steps}")
         for group, optimizer_config in config.optimizers.items():
             optimizer_config.validate(group)
         config.scheduler.validate()
@@ -148,14 +162,15 @@ class Trainer:
         self.device = pick_device(config.device)
         seed_everything(config.seed)
         self.run_dir = Path(config.output_dir)
-        self.pipeline = config.pipeline.setup(device=self.device, max_steps=config.max_steps)
+        self.horizon = schedule_horizon(config)
+        self.pipeline = config.pipeline.setup(device=self.device, max_steps=self.horizon)
         self.model = self.pipeline.model
         self.optimizer = self._make_optimizer()
         self.lr_multipliers: Dict[str, float] = {name: 1.0 for name in self.group_names}
         self.callbacks: List[TrainingCallback] = list(self.model.training_callbacks())
         self.callback_attributes = TrainingCallbackAttributes(
             pipeline=self.pipeline, max_steps=config.max_steps, run_dir=self.run_dir, progress=config.progress,
-            announce=self.announce)
+            announce=self.announce, schedule_steps=self.horizon)
         self.step = 0
         self.train_seconds = 0.0
         self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"),
@@ -182,7 +197,7 @@ class Trainer:
         return make_adam(param_groups)
 
     def _set_learning_rates(self, step: int) -> None:
-        factor = self.config.scheduler.factor(step, self.config.max_steps)
+        factor = self.config.scheduler.factor(step, self.horizon)
         for group in self.optimizer.param_groups:
             base = self.config.optimizers[group["name"]].lr
             group["lr"] = base * factor * self.lr_multipliers.get(group["name"], 1.0) * self.guard.lr_scale
