@@ -150,6 +150,16 @@ def test_phase_survives_a_checkpoint(method, tiny_scene, tmp_path):
     assert again.lr_multipliers["fields"] == pytest.approx(0.1)
 
 
+def test_phases_follow_schedule_steps_not_the_budget(tiny_scene, tmp_path):
+    """With ``schedule_steps=6`` a 12-step run switches phases at thirds of 6 steps and stays in phase 3."""
+    trainer = _trainer("va-neus", tiny_scene, tmp_path / "run", steps=12, schedule_steps=6)
+    phases = []
+    for _ in range(12):
+        _run_step(trainer)
+        phases.append(trainer.model.field.current_phase)
+    assert phases == [PRETRAIN] * 2 + [BRANCHES] * 2 + [FUSION] * 8
+
+
 def test_inputs_look_consistent_thresholds_the_spread():
     views = [{"psnr": 30.0, "psnr_foreground": 25.0}, {"psnr": 29.5, "psnr_foreground": 24.4}]
     assert inputs_look_consistent(views, 1.0)
