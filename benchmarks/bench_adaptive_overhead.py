@@ -43,7 +43,7 @@ def make_trainer(method: str, scene: Path, state: dict, out: Path, overrides=())
     config = get_method(method).make_config()
     config.pipeline.datamanager.dataparser.data = Path(scene)
     config.output_dir, config.progress, config.checkpoint_every = out, False, 10 ** 9
-    config.max_steps = 10 ** 6
+    config.max_steps, config.schedule_steps = 10 ** 6, 0  # the schedules as before: over the whole budget
     for item in overrides:
         apply_override(config, item)
     trainer = config.setup()

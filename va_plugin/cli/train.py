@@ -51,7 +51,9 @@ def add_object_options(parser: argparse.ArgumentParser) -> None:
                         help="SyncDreamer: camera elevation in degrees (default 30)")
     parser.add_argument("--rig", default=None, help="Zero123++: model version, v1.1 or v1.2 (default v1.2)")
     parser.add_argument("--preset", default=None, help="a named variant of the method (see its presets)")
-    parser.add_argument("--steps", type=int, default=None, help="step budget (overrides the method's)")
+    parser.add_argument("--steps", type=int, default=None,
+                        help="step budget (overrides the method's); steps past the method's schedule_steps "
+                             "continue at the schedules' final values (--set schedule_steps=0 stretches them)")
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 42)")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N] (default auto)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="PATH=VALUE",
