@@ -49,7 +49,7 @@ class TrainerConfig(InstantiateConfig):
     """Steps over which every schedule runs (learning-rate decay, grid levels opening, priors' starts,
     annealing, the adaptive phases); 0: ``max_steps``. A shorter budget compresses the schedules to
     ``max_steps``; a longer one trains its steps past ``schedule_steps`` at the schedules' final values
-    (see :meth:`schedule_horizon`)."""
+    (see :func:`schedule_horizon`)."""
     seed: int = 42
     """Seed of every random generator (the paper's 42)."""
     device: str = "auto"
