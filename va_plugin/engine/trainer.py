@@ -77,8 +77,8 @@ class TrainerConfig(InstantiateConfig):
 def schedule_horizon(config: "TrainerConfig") -> int:
     """The step at which a run's schedules end: ``min(max_steps, schedule_steps)``, or ``max_steps`` when
     ``schedule_steps`` is 0."""
-    steps = int(config.max_steps)
-    return min(steps, int(config.schedule_steps)) if int(getattr(config, "schedule_steps", 0)) > 0 else steps
+    steps, horizon = int(config.max_steps), int(config.schedule_steps)
+    return min(steps, horizon) if horizon > 0 else steps
 
 
 def seed_everything(seed: int) -> None:

@@ -28,6 +28,8 @@ class SceneInfo:
     scene_radius: float
     background: Sequence[float] = (1.0, 1.0, 1.0)
     max_steps: int = 1000
+    """The step at which the run's schedules end (``schedule_horizon`` of the trainer config: the budget, or
+    ``schedule_steps`` when that is shorter); the model's schedules are fractions of it."""
     train_cameras: Optional[Cameras] = None
     """The training views' cameras (the NGP occupancy grid keeps only cells they all see), on the device."""
 
