@@ -170,3 +170,46 @@ def test_gso_cream_is_the_dev_object_the_frame_cuts_off():
         alphas = torch.from_numpy(gso.load_renders(root, name, 256)[[0, 4, 8, 12], ..., 3:])
         shares = border_foreground(alphas)
         assert (min(shares) > 0.1) if cut else (max(shares) == 0.0), (name, shares)
+
+
+def _error_guided_manager(root, fraction, **kw):
+    config = DataManagerConfig(dataparser=TransformsDataParserConfig(data=root, scene_radius=4.0), rays_per_batch=400,
+                               foreground_fraction=0.0, error_sampling_fraction=fraction, **kw)
+    return DataManager(config)
+
+
+def test_error_guided_rays_follow_the_recorded_errors(tmp_path):
+    root = write_scene(tmp_path / "s", n=3, size=(16, 16))
+    dm = _error_guided_manager(root, 0.5)
+    # before any error is known the guided share is uniform over every pixel of every view
+    _, batch = dm.next_train(0)
+    assert len(set(batch["pixel"][:200, 0].tolist())) == 3
+    # every pixel seen with error 0 except view 1's pixel (row 5, column 7) with error 1
+    pixels = torch.stack(torch.meshgrid(torch.arange(3), torch.arange(16), torch.arange(16), indexing="ij"), -1)
+    pixels = pixels.reshape(-1, 3)
+    errors = torch.zeros(len(pixels))
+    errors[(pixels == torch.tensor([1, 5, 7])).all(-1)] = 1.0
+    dm.record_errors(pixels, errors)
+    _, batch = dm.next_train(1)
+    guided, plain = batch["pixel"][:200], batch["pixel"][200:]
+    hot = (guided == torch.tensor([1, 5, 7])).all(-1).float().mean()
+    # weights: 1 + 0.1 * mean for the hot pixel, 0.1 * mean for each of the 767 others: 1 / (1 + 0.1) of the mass
+    assert 0.8 < float(hot) < 0.99
+    assert float((plain == torch.tensor([1, 5, 7])).all(-1).float().mean()) < 0.05  # the rest stays uniform
+    # the error map travels with the checkpoint: a restored manager draws the same next batch
+    state = {k: v.clone() for k, v in dm.state_dict().items()}
+    _, expected = dm.next_train(2)
+    other = _error_guided_manager(root, 0.5)
+    other.load_state_dict(state)
+    _, again = other.next_train(2)
+    assert torch.equal(expected["pixel"], again["pixel"])
+
+
+def test_error_guided_share_off_keeps_no_error_map(tmp_path):
+    root = write_scene(tmp_path / "s", n=3, size=(16, 16))
+    plain, off = _error_guided_manager(root, 0.0), _error_guided_manager(root, 0.0)
+    assert not off.error_guided and "pixel_errors" not in off.state_dict()
+    off.record_errors(torch.zeros(4, 3, dtype=torch.long), torch.ones(4))  # a no-op
+    assert torch.equal(plain.next_train(0)[1]["pixel"], off.next_train(0)[1]["pixel"])
+    with pytest.raises(DataError, match="error_sampling_fraction"):
+        _error_guided_manager(root, 1.5)

@@ -33,6 +33,10 @@ class DataManagerConfig(InstantiateConfig):
     """Share of each batch drawn from foreground pixels (the rest uniformly from all pixels)."""
     seed: int = 42
     """Seed of the ray sampler's own generator (independent of the model's)."""
+    error_sampling_fraction: float = 0.0
+    """Share of each batch drawn in proportion to each pixel's colour error when it was last drawn (0: off;
+    the rest of the batch as ``foreground_fraction`` says). Pixels never drawn count as the mean error of
+    those that were, and a tenth of the mean is added to every pixel, so none is starved."""
 
 
 class DataManager:
@@ -41,6 +45,8 @@ class DataManager:
     def __init__(self, config: DataManagerConfig, device: torch.device = torch.device("cpu")) -> None:
         if not 0.0 <= config.foreground_fraction <= 1.0:
             raise DataError(f"foreground_fraction must be in [0, 1], got {config.foreground_fraction}")
+        if not 0.0 <= config.error_sampling_fraction <= 1.0:
+            raise DataError(f"error_sampling_fraction must be in [0, 1], got {config.error_sampling_fraction}")
         if config.rays_per_batch < 1:
             raise DataError(f"rays_per_batch must be positive, got {config.rays_per_batch}")
         self.config = config
@@ -59,6 +65,10 @@ class DataManager:
         self._height, self._width = self.images.shape[1:3]
         self._foreground = self._foreground_pixels()
         self._blurred: Dict[Tuple[str, float], torch.Tensor] = {}  # blurred inputs for view_warp.gradient_blur
+        # each pixel's colour error when last drawn (NaN: never drawn), for error_sampling_fraction
+        self.pixel_errors: Optional[torch.Tensor] = None
+        if config.error_sampling_fraction > 0:
+            self.pixel_errors = torch.full((self.images.shape[0] * self._height * self._width,), float("nan"))
         check_object_in_bound(self.train)
         warn_object_cut_by_frame(self.train)
 
@@ -83,8 +93,37 @@ class DataManager:
             raise DataError("the foreground masks are empty in every view: nothing to reconstruct")
         return flat
 
+    @property
+    def error_guided(self) -> bool:
+        """Whether part of each batch follows the pixels' colour errors (see :meth:`record_errors`)."""
+        return self.pixel_errors is not None
+
+    def record_errors(self, pixel: torch.Tensor, errors: torch.Tensor) -> None:
+        """Remember the colour error ``errors [n]`` of the batch's pixels ``pixel [n, 3]`` (view, row,
+        column) for the next batches' error-guided share; a no-op when that share is off."""
+        if self.pixel_errors is None:
+            return
+        views, rows, cols = pixel.detach().cpu().unbind(-1)
+        flat = (views * self._height + rows) * self._width + cols
+        self.pixel_errors[flat] = errors.detach().float().cpu().nan_to_num(0.0, 0.0, 0.0)
+
+    def _error_guided_indices(self, n: int) -> torch.Tensor:
+        errors = self.pixel_errors
+        seen = ~torch.isnan(errors)
+        mean = float(errors[seen].mean()) if bool(seen.any()) else 1.0
+        weights = torch.where(seen, errors, torch.full_like(errors, mean)) + (0.1 * mean + 1e-12)
+        return torch.multinomial(weights, n, replacement=True, generator=self.generator)
+
     def _sample_flat_indices(self) -> torch.Tensor:
         n = self.config.rays_per_batch
+        guided = None
+        if self.pixel_errors is not None:
+            n_guided = int(round(n * self.config.error_sampling_fraction))
+            guided, n = self._error_guided_indices(n_guided), n - n_guided
+        flat = self._plain_indices(n)
+        return flat if guided is None else torch.cat([guided, flat])
+
+    def _plain_indices(self, n: int) -> torch.Tensor:
         total = self.images.shape[0] * self._height * self._width
         n_fg = int(round(n * self.config.foreground_fraction)) if self._foreground is not None else 0
         uniform = torch.randint(0, total, (n - n_fg,), generator=self.generator)
@@ -153,7 +192,12 @@ class DataManager:
         return write_mask_picture(Path(run_dir) / MASK_PICTURE, self.train.images.numpy(), self.train.masks.numpy())
 
     def state_dict(self) -> Dict[str, torch.Tensor]:
-        return {"generator": self.generator.get_state()}
+        state = {"generator": self.generator.get_state()}
+        if self.pixel_errors is not None:
+            state["pixel_errors"] = self.pixel_errors.clone()
+        return state
 
     def load_state_dict(self, state: Dict[str, torch.Tensor]) -> None:
         self.generator.set_state(state["generator"])
+        if self.pixel_errors is not None and "pixel_errors" in state:
+            self.pixel_errors.copy_(state["pixel_errors"])
