@@ -213,3 +213,19 @@ def test_error_guided_share_off_keeps_no_error_map(tmp_path):
     assert torch.equal(plain.next_train(0)[1]["pixel"], off.next_train(0)[1]["pixel"])
     with pytest.raises(DataError, match="error_sampling_fraction"):
         _error_guided_manager(root, 1.5)
+
+
+def test_mask_guided_share_records_the_opacity_error(tmp_path):
+    root = write_scene(tmp_path / "s", n=3, size=(16, 16))
+    dm = _error_guided_manager(root, 0.5, error_sampling_source="mask")
+    pixel = torch.tensor([[0, 1, 2], [2, 3, 4]])
+    outputs = {"accumulation": torch.tensor([[0.5], [1.0]]), "rgb": torch.zeros(2, 3)}
+    batch = {"pixel": pixel, "mask": torch.tensor([[1.0], [1.0]]), "rgb": torch.ones(2, 3)}
+    dm.record_batch_errors(outputs, batch)
+    recorded = dm.pixel_errors[(pixel[:, 0] * 16 + pixel[:, 1]) * 16 + pixel[:, 2]]
+    assert torch.allclose(recorded, torch.tensor([0.25, 0.0]))  # the colour error (3 each) is not used
+    with pytest.raises(DataError, match="error_sampling_source"):
+        _error_guided_manager(root, 0.5, error_sampling_source="depth")
+    write_scene(tmp_path / "rgb", n=3, size=(16, 16), rgba=False)
+    with pytest.raises(DataError, match="needs masks"):
+        _error_guided_manager(tmp_path / "rgb", 0.5, error_sampling_source="mask")

@@ -18,6 +18,7 @@ from va_plugin.model_components.view_warp import gaussian_blurred, sample_biline
 from va_plugin.rays import RayBundle
 
 MASK_PICTURE = "masks.png"
+ERROR_SOURCES = ("rgb", "mask")
 
 
 @dataclass
@@ -37,6 +38,9 @@ class DataManagerConfig(InstantiateConfig):
     """Share of each batch drawn in proportion to each pixel's colour error when it was last drawn (0: off;
     the rest of the batch as ``foreground_fraction`` says). Pixels never drawn count as the mean error of
     those that were, and a tenth of the mean is added to every pixel, so none is starved."""
+    error_sampling_source: str = "rgb"
+    """Which error guides that share: ``rgb`` (the squared colour error of the composited render) or
+    ``mask`` (the squared error of the opacity against the mask: the outline only; needs masks)."""
 
 
 class DataManager:
@@ -47,6 +51,9 @@ class DataManager:
             raise DataError(f"foreground_fraction must be in [0, 1], got {config.foreground_fraction}")
         if not 0.0 <= config.error_sampling_fraction <= 1.0:
             raise DataError(f"error_sampling_fraction must be in [0, 1], got {config.error_sampling_fraction}")
+        if config.error_sampling_source not in ERROR_SOURCES:
+            raise DataError(f"error_sampling_source must be one of {', '.join(ERROR_SOURCES)}, "
+                            f"got {config.error_sampling_source!r}")
         if config.rays_per_batch < 1:
             raise DataError(f"rays_per_batch must be positive, got {config.rays_per_batch}")
         self.config = config
@@ -69,6 +76,9 @@ class DataManager:
         self.pixel_errors: Optional[torch.Tensor] = None
         if config.error_sampling_fraction > 0:
             self.pixel_errors = torch.full((self.images.shape[0] * self._height * self._width,), float("nan"))
+        if self.pixel_errors is not None and config.error_sampling_source == "mask" and self.masks is None:
+            raise DataError("error_sampling_source=mask needs masks, and this input has none "
+                            "(give --masks, or use error_sampling_source=rgb)")
         check_object_in_bound(self.train)
         warn_object_cut_by_frame(self.train)
 
@@ -98,9 +108,19 @@ class DataManager:
         """Whether part of each batch follows the pixels' colour errors (see :meth:`record_errors`)."""
         return self.pixel_errors is not None
 
+    def record_batch_errors(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]) -> None:
+        """Record the error that ``error_sampling_source`` names for a rendered training batch."""
+        if self.pixel_errors is None:
+            return
+        if self.config.error_sampling_source == "mask":
+            errors = ((outputs["accumulation"].detach() - batch["mask"]) ** 2).sum(-1)
+        else:
+            errors = ((outputs["rgb"].detach() - batch["rgb"]) ** 2).sum(-1)
+        self.record_errors(batch["pixel"], errors)
+
     def record_errors(self, pixel: torch.Tensor, errors: torch.Tensor) -> None:
-        """Remember the colour error ``errors [n]`` of the batch's pixels ``pixel [n, 3]`` (view, row,
-        column) for the next batches' error-guided share; a no-op when that share is off."""
+        """Remember the error ``errors [n]`` of the batch's pixels ``pixel [n, 3]`` (view, row, column)
+        for the next batches' error-guided share; a no-op when that share is off."""
         if self.pixel_errors is None:
             return
         views, rows, cols = pixel.detach().cpu().unbind(-1)

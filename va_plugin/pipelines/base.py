@@ -50,8 +50,7 @@ class Pipeline(nn.Module):
         with stage("rendering"):  # what the stages nested in the model's forward (sampling, ...) leave
             outputs = self.model.get_outputs(ray_bundle)
             loss_dict = self.model.get_loss_dict(outputs, batch)
-        if self.datamanager.error_guided:
-            self.datamanager.record_errors(batch["pixel"], ((outputs["rgb"].detach() - batch["rgb"]) ** 2).sum(-1))
+        self.datamanager.record_batch_errors(outputs, batch)
         metrics = self.model.get_metrics_dict(outputs, batch)
         return loss_dict, metrics
 
