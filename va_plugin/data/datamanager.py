@@ -35,7 +35,7 @@ class DataManagerConfig(InstantiateConfig):
     seed: int = 42
     """Seed of the ray sampler's own generator (independent of the model's)."""
     error_sampling_fraction: float = 0.0
-    """Share of each batch drawn in proportion to each pixel's colour error when it was last drawn (0: off;
+    """Share of each batch drawn in proportion to each pixel's error when it was last drawn (0: off;
     the rest of the batch as ``foreground_fraction`` says). Pixels never drawn count as the mean error of
     those that were, and a tenth of the mean is added to every pixel, so none is starved."""
     error_sampling_source: str = "rgb"
@@ -72,7 +72,7 @@ class DataManager:
         self._height, self._width = self.images.shape[1:3]
         self._foreground = self._foreground_pixels()
         self._blurred: Dict[Tuple[str, float], torch.Tensor] = {}  # blurred inputs for view_warp.gradient_blur
-        # each pixel's colour error when last drawn (NaN: never drawn), for error_sampling_fraction
+        # each pixel's error (error_sampling_source) when last drawn (NaN: never drawn), for error_sampling_fraction
         self.pixel_errors: Optional[torch.Tensor] = None
         if config.error_sampling_fraction > 0:
             self.pixel_errors = torch.full((self.images.shape[0] * self._height * self._width,), float("nan"))
@@ -105,7 +105,7 @@ class DataManager:
 
     @property
     def error_guided(self) -> bool:
-        """Whether part of each batch follows the pixels' colour errors (see :meth:`record_errors`)."""
+        """Whether part of each batch follows the pixels' errors (see :meth:`record_batch_errors`)."""
         return self.pixel_errors is not None
 
     def record_batch_errors(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]) -> None:
