@@ -4,9 +4,11 @@ Usage: python compare.py BASE_ROWS LABEL ROWS[,ROWS...] [LABEL ROWS[,ROWS...] ..
 
 BASE_ROWS and each ROWS are run_backbone.py rows.jsonl files (the last row of a scene wins); a column's
 mean is over the objects it has, with how many are within the issue's tolerance (PSNR no lower than
--0.2 dB, CD no higher than +3%).
+-0.2 dB, CD no higher than +3%). Below the table, one line per column: the means of both over its objects,
+the geometric mean of the CD ratios, and on how many objects each metric is better.
 """
 import json
+import math
 import sys
 
 
@@ -48,3 +50,14 @@ for label, _ in columns:
                  f"CD {100 * sum(d[2] for d in got) / n:+.1f}% ({n} objects; PSNR in tolerance {ok_psnr}/{n}, "
                  f"CD {ok_cd}/{n})")
 print("| " + " | ".join(cells) + " |")
+
+METRICS = ("psnr", "lpips", "cd", "iou", "ssim")
+for label, rows in columns:
+    both = [(base[s], rows[s]) for s in sorted(base) if s in rows]
+    if not both:
+        continue
+    means = [" / ".join(f"{sum(pair[i][k] for pair in both) / len(both):.4g}" for k in METRICS) for i in (0, 1)]
+    geo = math.exp(sum(math.log(r["cd"] / b["cd"]) for b, r in both) / len(both))
+    better = {k: sum((r[k] < b[k]) if k in ("lpips", "cd") else (r[k] > b[k]) for b, r in both) for k in METRICS}
+    print(f"{label}: {len(both)} objects; means {'/'.join(METRICS)} {means[0]} -> {means[1]}; CD geometric mean "
+          f"x{geo:.3f}; better on " + ", ".join(f"{k} {v}" for k, v in better.items()))
