@@ -64,3 +64,14 @@ def test_the_builtin_methods_are_listed_once_and_registered_as_entry_points(no_e
     assert all(registered.get(name) == reference for name, reference in BUILTIN_METHODS.items()), \
         "reinstall the package (pip install -e .): setup.py registers method_configs.BUILTIN_METHODS"
     assert set(BUILTIN_METHODS) <= set(discover_methods())
+
+
+def test_every_default_and_preset_ends_its_schedules_at_its_own_budget(no_env_methods):
+    """A method's default and each preset set ``schedule_steps`` to their own ``max_steps`` (or leave it 0,
+    the budget itself): a preset that shortened the budget but kept the default's horizon would stop
+    before its learning rate decayed or its grid levels opened."""
+    for name, spec in discover_methods().items():
+        for preset in [None, *spec.presets]:
+            config = spec.make_config(preset)
+            assert config.schedule_steps in (0, config.max_steps), (name, preset, config.schedule_steps,
+                                                                    config.max_steps)
