@@ -68,8 +68,9 @@ def test_the_builtin_methods_are_listed_once_and_registered_as_entry_points(no_e
 
 def test_every_default_and_preset_ends_its_schedules_at_its_own_budget(no_env_methods):
     """A method's default and each preset set ``schedule_steps`` to their own ``max_steps`` (or leave it 0,
-    the budget itself): a preset that shortened the budget but kept the default's horizon would stop
-    before its learning rate decayed or its grid levels opened."""
+    the budget itself): a preset that lengthened the budget but kept the default's horizon (``accurate``)
+    would spend its extra steps at the final learning rate instead of spreading its schedules over them
+    (a shorter one is safe either way, the horizon being ``min(max_steps, schedule_steps)``)."""
     for name, spec in discover_methods().items():
         for preset in [None, *spec.presets]:
             config = spec.make_config(preset)
