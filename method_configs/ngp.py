@@ -24,8 +24,9 @@ def ngp_config() -> TrainerConfig:
                                  n_samples=96),
         ),
         optimizers={"fields": OptimizerConfig(lr=1e-2),
-                    # used only when pipeline.model.view_appearance is switched on
-                    "view_appearance": OptimizerConfig(lr=1e-3), "view_warp": OptimizerConfig(lr=1e-3)},
+                    # used only when pipeline.model.view_appearance / view_warp / view_blur are switched on
+                    "view_appearance": OptimizerConfig(lr=1e-3), "view_warp": OptimizerConfig(lr=1e-3),
+                    "view_blur": OptimizerConfig(lr=1e-2)},
         scheduler=SchedulerConfig(warmup_steps=50, final_fraction=0.05),
         max_steps=1000,
         # the schedules end at 1000 steps whatever the budget (2026-11-27): a longer run continues this one at

@@ -16,6 +16,7 @@ from va_plugin.engine.callbacks import AFTER_STEP, TrainingCallback, TrainingCal
 from va_plugin.model_components import renderers
 from va_plugin.model_components.losses import psnr_from_mse, rgb_loss
 from va_plugin.model_components.view_appearance import ViewAppearanceConfig
+from va_plugin.model_components.view_blur import ViewBlurConfig
 from va_plugin.model_components.view_warp import ViewWarpConfig
 from va_plugin.rays import RayBundle
 
@@ -54,12 +55,19 @@ class ModelConfig(InstantiateConfig):
     """Per-view smooth image warp of the training targets (``enabled``; its learning rate is the "view_warp"
     optimizer group): view i's ray through pixel p is compared with the input at p + s_i(p). The geometry,
     the mesh and novel views never use it."""
+    view_blur: ViewBlurConfig = field(default_factory=ViewBlurConfig)
+    """Per-view learned blur of the training views' renders (``enabled``; its learning rate is the
+    "view_blur" optimizer group): view i's pixel is compared with the field rendered through a point-spread
+    function of its own, so a soft generated view need not make the shared field soft. Novel views and the
+    mesh never use it."""
 
 
 VIEW_APPEARANCE_FILE = "view_appearance.json"
 """In a run folder with per-view appearance: each training view's colour matrix and offset."""
 VIEW_WARP_FILE = "view_warp.json"
 """In a run folder with per-view warps: each training view's RMS and largest shift."""
+VIEW_BLUR_FILE = "view_blur.json"
+"""In a run folder with per-view blur: each training view's ring weight and blur (pixels)."""
 
 ExtraLoss = Callable[[Dict[str, torch.Tensor], Dict[str, torch.Tensor], int], Dict[str, torch.Tensor]]
 
@@ -84,6 +92,9 @@ class Model(nn.Module):
         self.view_warp = config.view_warp.setup(num_views=scene.num_train_views) \
             if config.view_warp.enabled else None
         """Per-view target warps (applied by the pipeline to each batch's targets), or None."""
+        self.view_blur = config.view_blur.setup(num_views=scene.num_train_views) \
+            if config.view_blur.enabled else None
+        """Per-view point-spread functions (the pipeline renders each batch through them), or None."""
 
     # -- training -------------------------------------------------------------------------------
     def update_step(self, step: int) -> None:
@@ -95,6 +106,8 @@ class Model(nn.Module):
             field.update_step(step, self.scene.max_steps)
         if self.view_warp is not None:
             self.view_warp.set_step(step, self.scene.max_steps)
+        if self.view_blur is not None:
+            self.view_blur.set_step(step, self.scene.max_steps)
 
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         raise NotImplementedError
@@ -118,6 +131,8 @@ class Model(nn.Module):
             groups["view_appearance"] = list(self.view_appearance.parameters())
         if self.view_warp is not None:
             groups["view_warp"] = list(self.view_warp.parameters())
+        if self.view_blur is not None:
+            groups["view_blur"] = list(self.view_blur.parameters())
         return groups
 
     def composite_other_colours(self, outputs: Dict[str, torch.Tensor], color: Dict[str, torch.Tensor],
@@ -154,6 +169,8 @@ class Model(nn.Module):
             losses["view_appearance"] = self.view_appearance.loss()
         if self.view_warp is not None:
             losses["view_warp"] = self.view_warp.loss()
+        if self.view_blur is not None and self.config.view_blur.penalty_weight > 0:
+            losses["view_blur"] = self.view_blur.loss()
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
         return losses
@@ -187,6 +204,8 @@ class Model(nn.Module):
             callbacks.append(TrainingCallback(self._write_view_appearance, AFTER_STEP))
         if self.view_warp is not None:
             callbacks.append(TrainingCallback(self._write_view_warp, AFTER_STEP))
+        if self.view_blur is not None:
+            callbacks.append(TrainingCallback(self._write_view_blur, AFTER_STEP))
         return callbacks
 
     def _write_view_appearance(self, step: int, attributes: TrainingCallbackAttributes) -> None:
@@ -196,6 +215,10 @@ class Model(nn.Module):
     def _write_view_warp(self, step: int, attributes: TrainingCallbackAttributes) -> None:
         self.write_after_last_step(step, attributes, VIEW_WARP_FILE, self.view_warp.summary,
                                    lambda s: f"view warp: largest shift {s['largest_px']:.2f} px")
+
+    def _write_view_blur(self, step: int, attributes: TrainingCallbackAttributes) -> None:
+        self.write_after_last_step(step, attributes, VIEW_BLUR_FILE, self.view_blur.summary,
+                                   lambda s: f"view blur: largest {s['largest_sigma_px']:.2f} px")
 
     @staticmethod
     def write_after_last_step(step: int, attributes: TrainingCallbackAttributes, filename: str,
@@ -219,6 +242,8 @@ class Model(nn.Module):
             out["appearance_max"] = round(self.view_appearance.max_change(), 5)
         if self.view_warp is not None:
             out["warp_max_px"] = round(self.view_warp.largest(), 4)
+        if self.view_blur is not None:
+            out["blur_max_px"] = round(float(self.view_blur.sigma_px().max()), 4)
         return out
 
     def sharpness(self) -> Optional[float]:
