@@ -113,3 +113,21 @@ def test_training_renders_each_pixel_through_its_view_blur(method, tiny_scene, t
     # off (the default): no parameters, no state-dict entry
     plain = tiny_config(method, tiny_scene, tmp_path / "plain").setup()
     assert plain.model.view_blur is None and not any("blur" in k for k in plain.model.state_dict())
+
+
+def test_the_blurred_share_of_a_batch_keeps_its_mix_of_foreground_and_background(tiny_scene, tmp_path):
+    """A batch is laid out foreground pixels first: the blurred fifth must not be all foreground."""
+    from va_plugin.model_components.view_blur import blurred_batch
+
+    torch.manual_seed(0)
+    trainer = tiny_config("neus", tiny_scene, tmp_path / "run", steps=2,
+                          **{"pipeline.model.view_blur.enabled": True}).setup()
+    datamanager = trainer.pipeline.datamanager
+    rays, batch = datamanager.next_train(0)
+    sub_rays, sub_batch, views = blurred_batch(trainer.model.view_blur, datamanager.cameras, rays, batch)
+    n = len(sub_batch["pixel"])
+    assert n == -(-len(rays) // (1 + RING)) and len(sub_rays) == n * (1 + RING)
+    share = lambda b: float((b["mask"] > 0.5).float().mean())  # noqa: E731
+    assert abs(share(sub_batch) - share(batch)) < 0.2 and share(sub_batch) < 0.99
+    # the pixels' own rays come first, identical to the batch's rays for those pixels
+    assert torch.allclose(sub_rays.directions[:n], rays.directions[::1 + RING], atol=1e-6)

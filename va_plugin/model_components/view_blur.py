@@ -120,10 +120,11 @@ class ViewBlur(PerViewCorrection):
 
 def blurred_batch(blur: ViewBlur, cameras, ray_bundle: RayBundle, batch: Dict[str, torch.Tensor]
                   ) -> Tuple[RayBundle, Dict[str, torch.Tensor], torch.Tensor]:
-    """The rays that render the first ``len(ray_bundle) // (1 + RING)`` pixels of ``batch`` through their
-    views' point-spread functions, that share of ``batch``, and the pixels' views."""
-    n = max(1, len(ray_bundle) // (1 + RING))
-    batch = {key: value[:n] for key, value in batch.items()}
+    """The rays that render every ``(1 + RING)``-th pixel of ``batch`` through their views' point-spread
+    functions, that share of ``batch``, and the pixels' views. A stride, not the first pixels: a batch is
+    laid out by kind (foreground pixels first, then uniform ones), and the share keeps its mix."""
+    pick = torch.arange(0, len(ray_bundle), 1 + RING, device=batch["pixel"].device)
+    batch = {key: value[pick] for key, value in batch.items()}
     views, rows, cols = batch["pixel"].unbind(-1)
     sub_rows, sub_cols = blur.sub_pixels(rows, cols)
     all_views = views.repeat(1 + RING)
