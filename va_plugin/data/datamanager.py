@@ -41,6 +41,10 @@ class DataManagerConfig(InstantiateConfig):
     error_sampling_source: str = "rgb"
     """Which error guides that share: ``rgb`` (the squared colour error of the composited render) or
     ``mask`` (the squared error of the opacity against the mask: the outline only; needs masks)."""
+    pixel_jitter: bool = False
+    """Send each training ray through a uniformly random point of its pixel instead of the pixel's
+    centre (the target stays the pixel's value): the field then learns each pixel as the average over
+    its area, as a camera records it, and the fine grid cells between pixel centres get a say."""
 
 
 class DataManager:
@@ -159,7 +163,11 @@ class DataManager:
         pixels = self._height * self._width
         views, within = flat // pixels, flat % pixels
         rows, cols = within // self._width, within % self._width
-        origins, directions = self.cameras.generate_rays(views, rows, cols)
+        ray_rows, ray_cols = rows, cols
+        if self.config.pixel_jitter:  # offsets from the sampler's own generator: resume stays exact
+            offsets = torch.rand((2, rows.shape[0]), generator=self.generator).to(self.device) - 0.5
+            ray_rows, ray_cols = rows + offsets[0], cols + offsets[1]
+        origins, directions = self.cameras.generate_rays(views, ray_rows, ray_cols)
         batch = {"rgb": self.images[views, rows, cols], "pixel": torch.stack([views, rows, cols], -1)}
         if self.masks is not None:
             batch["mask"] = self.masks[views, rows, cols]
