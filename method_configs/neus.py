@@ -35,8 +35,8 @@ def neus_config() -> TrainerConfig:
         # at 5e-3 ~200-250, with LPIPS -11..-14% and CD -8..-20% on the GSO objects (benchmarks/RESULTS.md)
         # 2e-2 since 2026-11-25: at 2000 steps on GSO-10 +0.30 dB (7/10), LPIPS -0.007 (8/10), CD x0.95 (9/10)
         optimizers={"fields": OptimizerConfig(lr=1e-2), "variance": OptimizerConfig(lr=2e-2),
-                    # used only when pipeline.model.camera_opt / view_deformation / view_appearance / view_warp / view_blur
-                    # are switched on
+                    # used only when pipeline.model.camera_opt / view_deformation / view_appearance /
+                    # view_warp / view_blur are switched on
                     "camera_opt": OptimizerConfig(lr=1e-3), "view_deformation": OptimizerConfig(lr=1e-3),
                     "view_appearance": OptimizerConfig(lr=1e-3), "view_warp": OptimizerConfig(lr=1e-3),
                     "view_blur": OptimizerConfig(lr=1e-2)},

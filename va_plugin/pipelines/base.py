@@ -49,11 +49,12 @@ class Pipeline(nn.Module):
             if warp is not None and warp.active:  # targets read where the view's learned warp says
                 batch = self.datamanager.warped_targets(batch, warp)
             blur = self.model.view_blur
-            if blur is not None and blur.active:  # a fifth of the pixels, each rendered by five rays
+            blurring = blur is not None and blur.active
+            if blurring:  # a fifth of the pixels, each rendered by five rays
                 ray_bundle, batch, views = blurred_batch(blur, self.datamanager.cameras, ray_bundle, batch)
         with stage("rendering"):  # what the stages nested in the model's forward (sampling, ...) leave
             outputs = self.model.get_outputs(ray_bundle)
-            if blur is not None and blur.active:
+            if blurring:
                 outputs = blur.combine(outputs, views)
             loss_dict = self.model.get_loss_dict(outputs, batch)
         self.datamanager.record_batch_errors(outputs, batch)
