@@ -30,7 +30,7 @@ from va_plugin.rays import RayBundle
 
 RING = 4
 """Rays around each pixel's own (a cross)."""
-PER_RAY_KEYS = ("accumulation", "depth", "normal")
+PER_RAY_KEYS = ("accumulation", "depth", "normal", "colour_weight")
 """Per-ray outputs that keep the pixel's own ray (the colour is mixed); per-sample outputs stay whole."""
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import math
 from dataclasses import dataclass, field
 from typing import Dict, List, Optional, Type
 
@@ -107,6 +108,13 @@ class NeuSModelConfig(ModelConfig):
     concavity that no input's mask or colour holds open)."""
     crossings_samples: int = 64
     """Stratified points per line of the crossings prior; the soft indicator's width is their spacing."""
+    colour_angle_power: float = 0.0
+    """Weight of a training ray's colour loss by how squarely it meets the surface (0 turns it off): the
+    ray's weight is ``(1 - opacity) + opacity * max(cos, 0) ** colour_angle_power``, with ``cos`` between the
+    ray and the rendered surface normal and both factors held constant, and the loss is the weighted mean.
+    A pixel that sees the surface at a grazing angle averages a long strip of it; weighted down, each surface
+    point takes its colour mostly from the view that sees it squarely (as a texture bake weights its views),
+    so the field's texture is less smeared. Background rays keep weight 1."""
     trim_fraction: float = 0.0
     """Robust colour and mask losses: each batch drops this share of its rays with the largest error
     from the loss (0: plain means). For generated views that are wrong in patches."""
@@ -135,6 +143,8 @@ class NeuSModel(Model):
             raise ConfigError("projected_area_weight must be >= 0, projected_area_rays >= 1 and "
                               f"projected_area_start in [0, 1], got {config.projected_area_weight}, "
                               f"{config.projected_area_rays} and {config.projected_area_start}")
+        if not (math.isfinite(config.colour_angle_power) and config.colour_angle_power >= 0):
+            raise ConfigError(f"colour_angle_power must be a finite number >= 0, got {config.colour_angle_power}")
         if config.crossings_weight < 0 or config.crossings_samples < 2:
             raise ConfigError("crossings_weight must be >= 0 and crossings_samples >= 2, got "
                               f"{config.crossings_weight} and {config.crossings_samples}")
@@ -284,6 +294,9 @@ class NeuSModel(Model):
             self.samples_per_ray = inner["weights"].numel() / max(n_rays, 1)
             self.probed_per_ray = (edges.shape[1] * n_rays + self._upsample_probes() * len(sub)) / max(n_rays, 1)
         outputs = inner if index is None else _scatter_rays(inner, index, n_rays, self.background, blank)
+        if self.training and self.config.colour_angle_power > 0:
+            outputs["colour_weight"] = colour_angle_weight(outputs["normal"], outputs["accumulation"],
+                                                           ray_bundle.directions, self.config.colour_angle_power)
         return self.apply_view_appearance(outputs, ray_bundle)
 
     def _deformed(self, points: torch.Tensor, camera_indices: torch.Tensor) -> torch.Tensor:
@@ -354,8 +367,14 @@ class NeuSModel(Model):
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
         cfg = self.config
         trim = cfg.trim_fraction > 0
-        loss = {"rgb": trimmed_mean(per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss), cfg.trim_fraction)
-                if trim else losses.rgb_loss(outputs["rgb"], batch["rgb"], cfg.rgb_loss)}
+        if "colour_weight" in outputs:
+            weight = outputs["colour_weight"]
+            per_ray = per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss) * (weight / weight.mean())
+            loss = {"rgb": trimmed_mean(per_ray, cfg.trim_fraction)}
+        else:
+            loss = {"rgb": trimmed_mean(per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss),
+                                        cfg.trim_fraction)
+                    if trim else losses.rgb_loss(outputs["rgb"], batch["rgb"], cfg.rgb_loss)}
         if cfg.eikonal_weight > 0:
             loss["eikonal"] = cfg.eikonal_weight * losses.eikonal_loss(outputs["gradients"], outputs["inside"])
         if cfg.mask_weight > 0 and "mask" in batch:
@@ -445,6 +464,18 @@ def _supports_analytic_gradient(field) -> bool:
     except NotImplementedError:
         return False
     return True
+
+def colour_angle_weight(normal: torch.Tensor, accumulation: torch.Tensor, directions: torch.Tensor,
+                        power: float) -> torch.Tensor:
+    """Per-ray weights ``[n]`` of ``colour_angle_power``, held constant: ``(1 - a) + a * max(cos, 0) ** power``
+    from the rendered normal ``[n, 3]`` (the opacity-weighted sum of sample normals), the opacity ``a``
+    ``[n, 1]`` (clamped to [0, 1]) and the ray directions ``[n, 3]``; a ray with no normal counts as grazing."""
+    normal, accumulation, directions = normal.detach(), accumulation.detach(), directions.detach()
+    cos = -(torch.nn.functional.normalize(normal, dim=-1, eps=1e-6)
+            * torch.nn.functional.normalize(directions, dim=-1, eps=1e-6)).sum(-1)
+    opacity = accumulation[..., 0].clamp(0.0, 1.0)
+    return (1.0 - opacity) + opacity * cos.clamp(0.0, 1.0) ** power
+
 
 PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")
 
