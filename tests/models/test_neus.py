@@ -341,3 +341,71 @@ def test_surface_crossings_band_matches_every_point_with_a_graph():
     for a, b in zip(full_grads, banded_grads):
         assert torch.allclose(a, b, rtol=0.02, atol=1e-3)
     assert float(full_grads[1]) > 0.1  # a larger sphere is crossed by more lines
+
+
+def test_colour_angle_weight_hand_computed():
+    from va_plugin.models.neus import colour_angle_weight
+
+    directions = torch.tensor([[0.0, 0.0, -2.0]] * 4)  # not unit length: normalised inside
+    # square on (cos 1), 60 degrees (cos 0.5), facing away (cos < 0), no normal at all (an empty ray)
+    normal = torch.tensor([[0.0, 0.0, 0.9], [0.0, 3 ** 0.5 / 2, 0.5], [0.0, 0.0, -1.0], [0.0, 0.0, 0.0]])
+    accumulation = torch.tensor([[1.0], [1.0], [0.5], [0.0]])
+    weight = colour_angle_weight(normal, accumulation, directions, 2.0)
+    assert torch.allclose(weight, torch.tensor([1.0, 0.25, 0.5, 1.0]), atol=1e-6)
+    half = colour_angle_weight(normal[1:2], torch.tensor([[0.5]]), directions[:1], 2.0)
+    assert torch.allclose(half, torch.tensor([0.5 + 0.5 * 0.25]))
+
+
+def test_colour_angle_weight_is_the_weighted_mean_of_the_colour_error(tiny_scene, tmp_path):
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.colour_angle_power": 4.0})
+    model = trainer.model
+    rays, batch = trainer.pipeline.datamanager.next_train(0)
+    outputs = model.get_outputs(rays)
+    weight = outputs["colour_weight"]
+    assert weight.shape == (len(rays),) and not weight.requires_grad
+    assert float(weight.min()) >= 0.0 and float(weight.max()) <= 1.0 + 1e-6
+    error = ((outputs["rgb"] - batch["rgb"]) ** 2).mean(-1)
+    loss = model.get_loss_dict(outputs, batch)["rgb"]
+    assert torch.allclose(loss, (weight * error).sum() / weight.sum(), rtol=1e-5)
+    loss.backward()
+    assert all(torch.isfinite(p.grad).all() for p in model.field.parameters() if p.grad is not None)
+    model.eval()
+    assert "colour_weight" not in model.get_outputs(rays)  # evaluation renders carry no training weight
+
+
+@pytest.mark.parametrize("value", [-1.0, float("nan")])
+def test_bad_colour_angle_power_is_a_config_error(value, tiny_scene, tmp_path):
+    from va_plugin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="colour_angle_power"):
+        _trainer(tiny_scene, tmp_path, **{"pipeline.model.colour_angle_power": value})
+
+
+def test_scale_gradient_keeps_the_value_and_scales_the_gradient():
+    from va_plugin.models.neus import scale_gradient
+
+    x = torch.tensor([1.0, -2.0, 3.0], requires_grad=True)
+    y = scale_gradient(x * 2.0, torch.tensor([1.0, 0.5, 0.0]))
+    assert torch.equal(y.detach(), torch.tensor([2.0, -4.0, 6.0]))
+    y.sum().backward()
+    assert torch.allclose(x.grad, torch.tensor([2.0, 1.0, 0.0]))
+
+
+def test_colour_mode_leaves_the_geometry_gradient_and_scales_the_colour_networks(tiny_scene, tmp_path):
+    grads, losses = {}, {}
+    for name, extra in (("plain", {}), ("colour", {"pipeline.model.colour_angle_power": 2.0,
+                                                  "pipeline.model.colour_angle_mode": "colour"})):
+        trainer = _trainer(tiny_scene, tmp_path / name, **extra)
+        model = trainer.model
+        rays, batch = trainer.pipeline.datamanager.next_train(0)
+        outputs = model.get_outputs(rays)
+        assert "colour_weight" not in outputs
+        losses[name] = model.get_loss_dict(outputs, batch)["rgb"]
+        losses[name].backward()
+        grads[name] = {k: p.grad.clone() for k, p in model.named_parameters() if p.grad is not None}
+    # the same loss; inv_s shapes the opacities only, so its gradient is the same; the colour network's differs
+    assert torch.allclose(losses["plain"], losses["colour"])
+    assert grads["plain"]["variance.variance"].abs() > 0
+    assert torch.allclose(grads["plain"]["variance.variance"], grads["colour"]["variance.variance"], rtol=1e-4)
+    colour = [k for k in grads["plain"] if k.startswith("field.color_net")]
+    assert colour and not all(torch.allclose(grads["plain"][k], grads["colour"][k], rtol=1e-3) for k in colour)

@@ -114,7 +114,12 @@ class NeuSModelConfig(ModelConfig):
     ray and the rendered surface normal and both factors held constant, and the loss is the weighted mean.
     A pixel that sees the surface at a grazing angle averages a long strip of it; weighted down, each surface
     point takes its colour mostly from the view that sees it squarely (as a texture bake weights its views),
-    so the field's texture is less smeared. Background rays keep weight 1."""
+    so the field's texture is less smeared. Background rays keep weight 1. See ``colour_angle_mode``."""
+    colour_angle_mode: str = "ray"
+    """What ``colour_angle_power`` weights: "ray", a ray's whole colour loss (the geometry's gradient from the
+    colour too), or "colour", only the gradient that flows back through the sample colours (into the colour
+    network and the geometry feature and normal it reads), per sample, by ``max(cos, 0) ** power`` with the
+    sample's own normal; the gradient through the opacities (where the surface lies) stays every ray's alike."""
     trim_fraction: float = 0.0
     """Robust colour and mask losses: each batch drops this share of its rays with the largest error
     from the loss (0: plain means). For generated views that are wrong in patches."""
@@ -145,6 +150,8 @@ class NeuSModel(Model):
                               f"{config.projected_area_rays} and {config.projected_area_start}")
         if not (math.isfinite(config.colour_angle_power) and config.colour_angle_power >= 0):
             raise ConfigError(f"colour_angle_power must be a finite number >= 0, got {config.colour_angle_power}")
+        if config.colour_angle_mode not in ("ray", "colour"):
+            raise ConfigError(f"colour_angle_mode must be 'ray' or 'colour', got {config.colour_angle_mode!r}")
         if config.crossings_weight < 0 or config.crossings_samples < 2:
             raise ConfigError("crossings_weight must be >= 0 and crossings_samples >= 2, got "
                               f"{config.crossings_weight} and {config.crossings_samples}")
@@ -294,7 +301,7 @@ class NeuSModel(Model):
             self.samples_per_ray = inner["weights"].numel() / max(n_rays, 1)
             self.probed_per_ray = (edges.shape[1] * n_rays + self._upsample_probes() * len(sub)) / max(n_rays, 1)
         outputs = inner if index is None else _scatter_rays(inner, index, n_rays, self.background, blank)
-        if self.training and self.config.colour_angle_power > 0:
+        if self.training and self.config.colour_angle_power > 0 and self.config.colour_angle_mode == "ray":
             outputs["colour_weight"] = colour_angle_weight(outputs["normal"], outputs["accumulation"],
                                                            ray_bundle.directions, self.config.colour_angle_power)
         return self.apply_view_appearance(outputs, ray_bundle)
@@ -353,6 +360,9 @@ class NeuSModel(Model):
         color = self.field.color(positions if self.training else positions.detach(), directions, normals,
                                  geo_features, camera_indices, weights=sample_weights.detach(),
                                  ray_indices=ray_indices)
+        if self.training and self.config.colour_angle_power > 0 and self.config.colour_angle_mode == "colour":
+            scale = (-(directions * normals).sum(-1, keepdim=True)).clamp(0.0, 1.0) ** self.config.colour_angle_power
+            color = dict(color, rgb=scale_gradient(color["rgb"], scale.detach()))
         outputs = {
             "rgb": renderers.render_rgb(weights, unpack(color["rgb"]), self.background),
             "accumulation": weights.sum(-1, keepdim=True),
@@ -464,6 +474,12 @@ def _supports_analytic_gradient(field) -> bool:
     except NotImplementedError:
         return False
     return True
+
+def scale_gradient(value: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
+    """``value`` unchanged, with the gradient that flows back through it multiplied by ``scale``
+    (broadcast against it)."""
+    return value * scale + value.detach() * (1.0 - scale)
+
 
 def colour_angle_weight(normal: torch.Tensor, accumulation: torch.Tensor, directions: torch.Tensor,
                         power: float) -> torch.Tensor:
