@@ -373,12 +373,13 @@ def test_colour_angle_weight_is_the_weighted_mean_of_the_colour_error(tiny_scene
     assert "colour_weight" not in model.get_outputs(rays)  # evaluation renders carry no training weight
 
 
-@pytest.mark.parametrize("value", [-1.0, float("nan")])
-def test_bad_colour_angle_power_is_a_config_error(value, tiny_scene, tmp_path):
+@pytest.mark.parametrize("key, value", [("colour_angle_power", -1.0), ("colour_angle_power", float("nan")),
+                                        ("colour_angle_mode", "pixel")])
+def test_bad_colour_angle_options_are_config_errors(key, value, tiny_scene, tmp_path):
     from va_plugin.errors import ConfigError
 
-    with pytest.raises(ConfigError, match="colour_angle_power"):
-        _trainer(tiny_scene, tmp_path, **{"pipeline.model.colour_angle_power": value})
+    with pytest.raises(ConfigError, match=key):
+        _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})
 
 
 def test_scale_gradient_keeps_the_value_and_scales_the_gradient():
@@ -409,3 +410,31 @@ def test_colour_mode_leaves_the_geometry_gradient_and_scales_the_colour_networks
     assert torch.allclose(grads["plain"]["variance.variance"], grads["colour"]["variance.variance"], rtol=1e-4)
     colour = [k for k in grads["plain"] if k.startswith("field.color_net")]
     assert colour and not all(torch.allclose(grads["plain"][k], grads["colour"][k], rtol=1e-3) for k in colour)
+
+
+def test_inv_s_floor_rises_from_its_start_and_lifts_the_learned_value(tiny_scene, tmp_path):
+    trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.inv_s_floor": 500.0,
+                                                "pipeline.model.inv_s_floor_start": 0.5,
+                                                "max_steps": 8, "schedule_steps": 8})
+    model, steps = trainer.model, trainer.model.scene.max_steps
+    assert steps == 8
+    assert model.inv_s_floor(0) == 0.0 and model.inv_s_floor(steps // 2) == 0.0
+    assert model.inv_s_floor(steps) == pytest.approx(500.0) and model.inv_s_floor(10 * steps) == pytest.approx(500.0)
+    assert model.inv_s_floor(6) == pytest.approx(250.0)
+    start = float(model.variance.inv_s().detach())
+    model.update_step(steps // 2)
+    assert float(model.variance.inv_s().detach()) == pytest.approx(start)  # below the start: untouched
+    model.update_step(steps)
+    assert float(model.variance.inv_s().detach()) == pytest.approx(500.0, rel=1e-4)
+    plain = _trainer(tiny_scene, tmp_path / "plain")
+    plain.model.update_step(steps)
+    assert float(plain.model.variance.inv_s().detach()) == pytest.approx(start)
+
+
+@pytest.mark.parametrize("key, value", [("inv_s_floor", -1.0), ("inv_s_floor", float("inf")),
+                                        ("inv_s_floor_start", 1.0)])
+def test_bad_inv_s_floor_options_are_config_errors(key, value, tiny_scene, tmp_path):
+    from va_plugin.errors import ConfigError
+
+    with pytest.raises(ConfigError, match="inv_s_floor"):
+        _trainer(tiny_scene, tmp_path, **{f"pipeline.model.{key}": value})

@@ -54,6 +54,14 @@ class NeuSModelConfig(ModelConfig):
     non-finite value; the training guard rolls that back too (``health.inv_s_saturation``)."""
     variance_init: float = 0.3
     """Initial v of inv_s = exp(10 v)."""
+    inv_s_floor: float = 0.0
+    """A floor under the learned inv_s (0 turns it off): from ``inv_s_floor_start`` of the step budget it rises
+    linearly to this value at the budget's end, and after every step the learned inv_s is lifted to it where
+    it lies below. The surface the field trains on is then about as sharp as the mesh cut from it, so renders
+    show a hard edge instead of a soft fringe (compare ``render_sharpness``, which sharpens renders of a field
+    trained soft)."""
+    inv_s_floor_start: float = 0.5
+    """Share of the step budget at which ``inv_s_floor`` starts to rise from 0."""
     render_sharpness: float = 1.0
     """Factor on the learned inv_s when rendering novel views outside training (evaluation, ``va-export
     render``, turntables: batches whose rays all take the canonical path, camera index -1). Above 1 the
@@ -150,6 +158,10 @@ class NeuSModel(Model):
                               f"{config.projected_area_rays} and {config.projected_area_start}")
         if not (math.isfinite(config.colour_angle_power) and config.colour_angle_power >= 0):
             raise ConfigError(f"colour_angle_power must be a finite number >= 0, got {config.colour_angle_power}")
+        if not (math.isfinite(config.inv_s_floor) and 0.0 <= config.inv_s_floor <= 1e5) or \
+                not 0.0 <= config.inv_s_floor_start < 1.0:
+            raise ConfigError(f"inv_s_floor must be in [0, 1e5] and inv_s_floor_start in [0, 1), got "
+                              f"{config.inv_s_floor} and {config.inv_s_floor_start}")
         if config.colour_angle_mode not in ("ray", "colour"):
             raise ConfigError(f"colour_angle_mode must be 'ray' or 'colour', got {config.colour_angle_mode!r}")
         if config.crossings_weight < 0 or config.crossings_samples < 2:
@@ -176,6 +188,15 @@ class NeuSModel(Model):
         """SDF evaluations per batch ray of the gradient-free coarse and up-sampling passes, last training batch."""
 
     # -- schedules ------------------------------------------------------------------------------
+    def inv_s_floor(self, step: int) -> float:
+        """The floor under the learned inv_s at ``step`` (0: none)."""
+        cfg = self.config
+        if cfg.inv_s_floor <= 0:
+            return 0.0
+        start = cfg.inv_s_floor_start * self.scene.max_steps
+        span = max(1.0, self.scene.max_steps - start)
+        return cfg.inv_s_floor * min(1.0, max(0.0, (step - start) / span))
+
     def cos_anneal_ratio(self) -> float:
         if not self.training:
             return 1.0
@@ -184,6 +205,10 @@ class NeuSModel(Model):
 
     def update_step(self, step: int) -> None:
         super().update_step(step)
+        floor = self.inv_s_floor(step)
+        if floor > 0:
+            with torch.no_grad():
+                self.variance.variance.clamp_(min=math.log(floor) / 10.0)
         if self.camera_optimizer is not None:
             self.camera_optimizer.set_step(step, self.scene.max_steps)
 
