@@ -132,7 +132,7 @@ def test_smoothness_prior_is_a_finite_loss_that_trains_the_geometry(tiny_scene, 
     grads = [p.grad for p in model.field.encoding.parameters() if p.grad is not None]
     assert grads and all(torch.isfinite(g).all() for g in grads) and any(g.abs().sum() > 0 for g in grads)
     # off by default: no surface points are kept and no term is added
-    plain = _trainer(tiny_scene, tmp_path / "plain").model
+    plain = _trainer(tiny_scene, tmp_path / "plain", **{"pipeline.model.inv_s_floor": 0.0}).model
     out = plain.get_outputs(rays)
     assert "surface_points" not in out and "smoothness" not in plain.get_loss_dict(out, batch)
 
@@ -426,7 +426,7 @@ def test_inv_s_floor_rises_from_its_start_and_lifts_the_learned_value(tiny_scene
     assert float(model.variance.inv_s().detach()) == pytest.approx(start)  # below the start: untouched
     model.update_step(steps)
     assert float(model.variance.inv_s().detach()) == pytest.approx(500.0, rel=1e-4)
-    plain = _trainer(tiny_scene, tmp_path / "plain")
+    plain = _trainer(tiny_scene, tmp_path / "plain", **{"pipeline.model.inv_s_floor": 0.0})
     plain.model.update_step(steps)
     assert float(plain.model.variance.inv_s().detach()) == pytest.approx(start)
 
