@@ -55,13 +55,13 @@ class NeuSModelConfig(ModelConfig):
     variance_init: float = 0.3
     """Initial v of inv_s = exp(10 v)."""
     inv_s_floor: float = 0.0
-    """A floor under the learned inv_s (0 turns it off): from ``inv_s_floor_start`` of the step budget it rises
-    linearly to this value at the budget's end, and after every step the learned inv_s is lifted to it where
-    it lies below. The surface the field trains on is then about as sharp as the mesh cut from it, so renders
+    """A floor under the learned inv_s (0 turns it off): from ``inv_s_floor_start`` of the schedule it rises
+    linearly to this value at the schedule's end (and stays there in a longer run), and before every step the
+    learned inv_s is lifted to it where it lies below. The surface the field trains on is then about as sharp as the mesh cut from it, so renders
     show a hard edge instead of a soft fringe (compare ``render_sharpness``, which sharpens renders of a field
     trained soft)."""
     inv_s_floor_start: float = 0.5
-    """Share of the step budget at which ``inv_s_floor`` starts to rise from 0."""
+    """Share of the schedule at which ``inv_s_floor`` starts to rise from 0."""
     render_sharpness: float = 1.0
     """Factor on the learned inv_s when rendering novel views outside training (evaluation, ``va-export
     render``, turntables: batches whose rays all take the canonical path, camera index -1). Above 1 the
@@ -404,7 +404,7 @@ class NeuSModel(Model):
         trim = cfg.trim_fraction > 0
         if "colour_weight" in outputs:
             weight = outputs["colour_weight"]
-            per_ray = per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss) * (weight / weight.mean())
+            per_ray = per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss) * (weight / weight.mean().clamp_min(1e-6))
             loss = {"rgb": trimmed_mean(per_ray, cfg.trim_fraction)}
         else:
             loss = {"rgb": trimmed_mean(per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss),
@@ -499,6 +499,7 @@ def _supports_analytic_gradient(field) -> bool:
     except NotImplementedError:
         return False
     return True
+
 
 def scale_gradient(value: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
     """``value`` unchanged, with the gradient that flows back through it multiplied by ``scale``
