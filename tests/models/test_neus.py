@@ -383,7 +383,7 @@ def test_bad_colour_angle_options_are_config_errors(key, value, tiny_scene, tmp_
 
 
 def test_scale_gradient_keeps_the_value_and_scales_the_gradient():
-    from va_plugin.models.neus import scale_gradient
+    from va_plugin.model_components.losses import scale_gradient
 
     x = torch.tensor([1.0, -2.0, 3.0], requires_grad=True)
     y = scale_gradient(x * 2.0, torch.tensor([1.0, 0.5, 0.0]))

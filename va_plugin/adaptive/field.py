@@ -31,6 +31,7 @@ from va_plugin.adaptive.phases import (BRANCHES, FUSION, PRETRAIN,
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import Field, FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
+from va_plugin.model_components.losses import scale_gradient
 
 ADAPTIVE_SEED_OFFSET = 7919
 """Added to the run's seed for the stream that initialises the branches and the attention."""
@@ -433,13 +434,6 @@ class ViewAdaptiveField(Field):
         if self.fusion_active():
             out["fused_share"] = round(self.fused_share, 4)
         return out
-
-
-def scale_gradient(x: torch.Tensor, scale: float) -> torch.Tensor:
-    """``x`` in the forward pass; ``scale`` times its gradient in the backward pass (0: detached)."""
-    if scale <= 0.0:
-        return x.detach()
-    return x.detach() + scale * (x - x.detach())
 
 
 def backbone_state_in_wrapper(model_state: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:

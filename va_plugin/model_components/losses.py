@@ -13,6 +13,14 @@ def rgb_loss(pred: torch.Tensor, target: torch.Tensor, kind: str = "l2") -> torc
     return (diff * diff).mean() if kind == "l2" else diff.abs().mean()
 
 
+def scale_gradient(x: torch.Tensor, scale) -> torch.Tensor:
+    """``x`` in the forward pass (exactly); ``scale`` times its gradient in the backward pass. ``scale`` is a
+    number (0 or less: ``x`` detached) or a tensor broadcast against ``x`` (held constant)."""
+    if not torch.is_tensor(scale) and scale <= 0.0:
+        return x.detach()
+    return x.detach() + scale * (x - x.detach())
+
+
 GRADIENT_BOUND = 1e12
 """SDF gradient components are clamped to +-1e12 in the eikonal loss, so a blown-up field gives a huge
 but finite loss (which the trainer's guard rolls back) instead of an overflow to inf and NaN gradients."""

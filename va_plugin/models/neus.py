@@ -387,7 +387,7 @@ class NeuSModel(Model):
                                  ray_indices=ray_indices)
         if self.training and self.config.colour_angle_power > 0 and self.config.colour_angle_mode == "colour":
             scale = (-(directions * normals).sum(-1, keepdim=True)).clamp(0.0, 1.0) ** self.config.colour_angle_power
-            color = dict(color, rgb=scale_gradient(color["rgb"], scale.detach()))
+            color = dict(color, rgb=losses.scale_gradient(color["rgb"], scale.detach()))
         outputs = {
             "rgb": renderers.render_rgb(weights, unpack(color["rgb"]), self.background),
             "accumulation": weights.sum(-1, keepdim=True),
@@ -499,12 +499,6 @@ def _supports_analytic_gradient(field) -> bool:
     except NotImplementedError:
         return False
     return True
-
-
-def scale_gradient(value: torch.Tensor, scale: torch.Tensor) -> torch.Tensor:
-    """``value`` unchanged, with the gradient that flows back through it multiplied by ``scale``
-    (broadcast against it)."""
-    return value * scale + value.detach() * (1.0 - scale)
 
 
 def colour_angle_weight(normal: torch.Tensor, accumulation: torch.Tensor, directions: torch.Tensor,
