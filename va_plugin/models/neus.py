@@ -57,9 +57,9 @@ class NeuSModelConfig(ModelConfig):
     inv_s_floor: float = 0.0
     """A floor under the learned inv_s (0 turns it off): from ``inv_s_floor_start`` of the schedule it rises
     linearly to this value at the schedule's end (and stays there in a longer run), and before every step the
-    learned inv_s is lifted to it where it lies below. The surface the field trains on is then about as sharp as the mesh cut from it, so renders
-    show a hard edge instead of a soft fringe (compare ``render_sharpness``, which sharpens renders of a field
-    trained soft)."""
+    learned inv_s is lifted to it where it lies below. The surface the field trains on is then about as sharp
+    as the mesh cut from it, so renders show a hard edge instead of a soft fringe (compare
+    ``render_sharpness``, which sharpens renders of a field trained soft)."""
     inv_s_floor_start: float = 0.5
     """Share of the schedule at which ``inv_s_floor`` starts to rise from 0."""
     render_sharpness: float = 1.0
@@ -404,7 +404,8 @@ class NeuSModel(Model):
         trim = cfg.trim_fraction > 0
         if "colour_weight" in outputs:
             weight = outputs["colour_weight"]
-            per_ray = per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss) * (weight / weight.mean().clamp_min(1e-6))
+            per_ray = (per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss)
+                       * (weight / weight.mean().clamp_min(1e-6)))
             loss = {"rgb": trimmed_mean(per_ray, cfg.trim_fraction)}
         else:
             loss = {"rgb": trimmed_mean(per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss),
