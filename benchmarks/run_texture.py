@@ -36,6 +36,22 @@ BAKES = {"robust": dict(fusion="robust"),  # with the per-view colour harmonisat
          "mean": dict(fusion="mean"),  # the plain angle-weighted average
          "robust-plain": dict(fusion="robust", harmonise_views=False),
          "mean-harmonised": dict(fusion="mean", harmonise_views=True)}
+FIELD_BAKE = "robust-field="
+"""``robust-field=W``: robust fusion with the field's colour as one more view of weight W everywhere."""
+
+
+def bake_options(name: str) -> dict:
+    """bake_texture's options of a ``--bakes`` entry (ConfigError for an unknown one)."""
+    if name in BAKES:
+        return BAKES[name]
+    if name.startswith(FIELD_BAKE):
+        try:
+            weight = float(name[len(FIELD_BAKE):])
+        except ValueError:
+            weight = -1.0
+        if np.isfinite(weight) and weight > 0:
+            return dict(fusion="robust", field_weight=weight)
+    raise ConfigError(f"--bakes: unknown {name!r}; known: {', '.join(BAKES)}, {FIELD_BAKE}W (W > 0)")
 
 
 def timing_views(pipeline, count: int) -> Views:
@@ -100,7 +116,7 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
     atlas = None
     for fusion in bakes:
         textured, report = bake_texture(mesh, run_views(pipeline), size=size, fallback=fallback, atlas=atlas,
-                                        max_faces=max_faces, **BAKES[fusion])
+                                        max_faces=max_faces, **bake_options(fusion))
         record["faces_textured"] = len(textured.faces)
         atlas = (textured.vertices, textured.faces, textured.uv)  # unwrap once, bake twice
         scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False)
@@ -150,7 +166,8 @@ def main(argv=None) -> int:
                         help="on the first run, also time a bake from this many views (0: no)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--bakes", default="robust,mean",
-                        help=f"comma-separated bakes to score, from {', '.join(BAKES)} (robust and mean always)")
+                        help=f"comma-separated bakes to score, from {', '.join(BAKES)} and {FIELD_BAKE}W (robust fusion "
+                        "with the field's colour as one more view of weight W; robust and mean always)")
     parser.add_argument("--reuse-field-scores", action="store_true",
                         help="take the field's scores from RUN/bench_row.json (all held-out views, written by "
                         "run_backbone) instead of rendering them again; needs no --max-views")
@@ -168,9 +185,8 @@ def main(argv=None) -> int:
     if not 16 <= args.mesh_resolution <= 512:
         raise ConfigError(f"--mesh-resolution must be in [16, 512], got {args.mesh_resolution}")
     bakes = [b.strip() for b in args.bakes.split(",") if b.strip()]
-    unknown = [b for b in bakes if b not in BAKES]
-    if unknown:
-        raise ConfigError(f"--bakes: unknown {', '.join(unknown)}; known: {', '.join(BAKES)}")
+    for b in bakes:
+        bake_options(b)
     bakes = ["robust", "mean"] + [b for b in bakes if b not in ("robust", "mean")]
     check_texture_size(args.texture_size)
     torch.set_num_threads(args.threads)

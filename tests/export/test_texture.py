@@ -250,3 +250,36 @@ def test_a_dense_mesh_is_simplified_before_the_unwrap_and_still_bakes_its_colour
     assert np.median(error) < 0.01
     whole, _ = bake_texture(sphere, views, size=TEXTURE, max_faces=0)
     assert len(whole.faces) == len(sphere.faces)
+
+
+def test_a_field_weight_blends_the_field_colour_in_where_views_see_the_surface_poorly():
+    mesh = cube()
+    views = cube_views(mesh, [0.0, 90.0], [20.0, 20.0])
+    green = np.float32([0.1, 0.8, 0.2])
+    field = lambda points, normals: np.tile(green, (len(points), 1))  # noqa: E731
+    plain, plain_report = bake_texture(mesh, views, size=TEXTURE, fusion="mean", fallback=field)
+    blended, report = bake_texture(mesh, views, size=TEXTURE, fusion="mean", fallback=field, field_weight=0.1,
+                                   atlas=(plain.vertices, plain.faces, plain.uv))
+    covered, _ = texel_truth(plain)
+    seen = plain_report.weight_maps[:, covered].sum(0) > 0
+    share = 1.0 - report.weight_maps[:, covered].sum(0)  # the field's share of each texel
+    assert np.all(share[~seen] > 0.999)  # texels no view sees are the field's alone, as without a weight
+    # a texel is the plain bake's colour and the field's, mixed by the field's share
+    expected = (1.0 - share[seen, None]) * plain.image[covered][seen] + share[seen, None] * green
+    assert np.abs(blended.image[covered][seen] - expected).max() < 1e-4
+    # head-on texels keep their views' colour, grazing ones lean to the field's
+    assert share[seen].min() < 0.1 and share[seen].max() > 0.4
+    assert 0 < report.summary()["field_share"] < 1
+    everywhere, _ = bake_texture(mesh, views, size=TEXTURE, fusion="robust", fallback=field, field_weight=1e6,
+                                 atlas=(plain.vertices, plain.faces, plain.uv))
+    assert np.abs(everywhere.image[covered] - green).max() < 1e-3
+
+
+@pytest.mark.parametrize("weight", [-0.1, float("nan"), float("inf")])
+def test_a_bad_field_weight_is_refused(weight):
+    mesh = cube()
+    views = cube_views(mesh, [0.0], [20.0])
+    with pytest.raises(VAError, match="field's weight"):
+        bake_texture(mesh, views, size=TEXTURE, fallback=lambda p, n: np.zeros_like(p), field_weight=weight)
+    with pytest.raises(VAError, match="needs the field's colour"):
+        bake_texture(mesh, views, size=TEXTURE, field_weight=0.1)

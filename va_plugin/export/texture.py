@@ -130,6 +130,7 @@ class BakeReport:
     view_texels: List[int]  # texels each view sees
     seconds: Dict[str, float] = field(default_factory=dict)
     gains: Optional[np.ndarray] = None  # [n, 3] per-view colour gain of the harmonisation (None: off)
+    field_share: Optional[float] = None  # mean share of the field's colour over the surface (None: no weight)
 
     def summary(self) -> Dict[str, object]:
         total = np.maximum(self.weight_maps.sum(0), 1e-12)
@@ -140,6 +141,8 @@ class BakeReport:
                "seconds": {k: round(v, 2) for k, v in self.seconds.items()}}
         if self.gains is not None:
             out["view_colour_gain"] = np.round(self.gains, 4).tolist()
+        if self.field_share is not None:
+            out["field_share"] = round(self.field_share, 4)
         return out
 
 
@@ -461,18 +464,28 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Optional[Fallback] = None, progress: bool = False, atlas=None,
-                 harmonise_views: Optional[bool] = None, max_faces: Optional[int] = MAX_TEXTURE_FACES):
+                 harmonise_views: Optional[bool] = None, max_faces: Optional[int] = MAX_TEXTURE_FACES,
+                 field_weight: float = 0.0):
     """UV-unwrap ``mesh`` (first simplified to ``max_faces``, see :func:`simplify_for_texture`) and bake its
     texture from ``views``: ``(TexturedMesh, BakeReport)``. ``atlas``: the ``(vertices, faces, uv)`` of an
     earlier :func:`unwrap` of the same mesh at the same size (the textured mesh's own), reused as it is.
     ``harmonise_views``: level each view's colours against the others (:func:`harmonise`) before fusing;
     None: with robust fusion only (mean fusion stays the plain angle-weighted average).
+    ``field_weight``: with a ``fallback``, the fall-back's colour joins every texel's fusion as one more
+    view of this constant weight (a view's own weight is ``cos^2`` of its angle times its edge ramp, so
+    0.1 equals a view at 72 degrees); texels only grazing or edge views see lean towards the field's
+    colour instead of switching to it where the last view drops out. 0: the fall-back fills unseen
+    texels only.
 
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
     check_texture_memory(size, len(views))
     if fusion not in FUSIONS:
         raise VAError(f"unknown fusion {fusion!r}; use one of {', '.join(FUSIONS)}")
+    if not (np.isfinite(field_weight) and field_weight >= 0.0):
+        raise VAError(f"the field's weight in the bake must be a finite number >= 0, got {field_weight}")
+    if field_weight > 0 and fallback is None:
+        raise VAError("a field weight in the bake needs the field's colour (a fall-back)")
     if len(np.asarray(mesh.faces)) == 0:
         raise VAError("the mesh has no faces: nothing to texture")
     seconds = {}
@@ -493,6 +506,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     normals = np.einsum("mk,mkc->mc", b, vertex_normals[corners])
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
     colours, weights, in_view = view_samples(vertices, faces, points, normals, views, progress=progress)
+    n_views = len(views)
     view_texels = [int(c) for c in (weights > 0).sum(0)]
     blind = [k for k in range(len(views)) if not in_view[k]]
     if blind:
@@ -504,10 +518,17 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     if harmonise_views if harmonise_views is not None else fusion == "robust":
         gains = harmonise(colours, weights)
         colours = apply_harmonisation(colours, weights, gains)
+    seen = (weights > 0).any(1)
+    if field_weight > 0:
+        prior = np.clip(fallback(points, normals), 0.0, 1.0).astype(np.float32)
+        colours = np.concatenate([colours, prior[:, None]], 1)
+        weights = np.concatenate([weights, np.full((len(weights), 1), field_weight, np.float32)], 1)
     fused, share = fuse(colours, weights, fusion)
-    seen = share.sum(1) > 0
+    field_share = float(share[:, n_views:].sum() / max(len(share), 1)) if field_weight > 0 else None
+    share = share[:, :n_views]
     if fallback is not None and (~seen).any():
-        fused[~seen] = np.clip(fallback(points[~seen], normals[~seen]), 0.0, 1.0)
+        if field_weight <= 0:  # (with a field weight the fusion has already given them the field's colour)
+            fused[~seen] = np.clip(fallback(points[~seen], normals[~seen]), 0.0, 1.0)
         seen_or_filled = np.ones_like(seen)
     else:
         seen_or_filled = seen
@@ -520,7 +541,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     image = dilate(image, filled)
     maps = np.zeros((len(views), size, size), np.float32)
     maps[:, rows, cols] = share.T
-    report = BakeReport(maps, int(covered.sum()), int(seen.sum()), view_texels, seconds, gains)
+    report = BakeReport(maps, int(covered.sum()), int(seen.sum()), view_texels, seconds, gains, field_share)
     return TexturedMesh(vertices, faces, uv, np.clip(image, 0.0, 1.0)), report
 
 
