@@ -38,20 +38,24 @@ BAKES = {"robust": dict(fusion="robust"),  # with the per-view colour harmonisat
          "mean-harmonised": dict(fusion="mean", harmonise_views=True)}
 FIELD_BAKE = "robust-field="
 """``robust-field=W``: robust fusion with the field's colour as one more view of weight W everywhere."""
+ANCHOR_BAKE = "robust-anchor="
+"""``robust-anchor=W``: the same, with the views first judged against the field's colour (not their medoid)."""
 
 
 def bake_options(name: str) -> dict:
     """bake_texture's options of a ``--bakes`` entry (ConfigError for an unknown one)."""
     if name in BAKES:
         return BAKES[name]
-    if name.startswith(FIELD_BAKE):
-        try:
-            weight = float(name[len(FIELD_BAKE):])
-        except ValueError:
-            weight = -1.0
-        if np.isfinite(weight) and weight > 0:
-            return dict(fusion="robust", field_weight=weight)
-    raise ConfigError(f"--bakes: unknown {name!r}; known: {', '.join(BAKES)}, {FIELD_BAKE}W (W > 0)")
+    for prefix in (FIELD_BAKE, ANCHOR_BAKE):
+        if name.startswith(prefix):
+            try:
+                weight = float(name[len(prefix):])
+            except ValueError:
+                weight = -1.0
+            if np.isfinite(weight) and weight > 0:
+                return dict(fusion="robust", field_weight=weight, field_anchor=prefix == ANCHOR_BAKE)
+    raise ConfigError(f"--bakes: unknown {name!r}; known: {', '.join(BAKES)}, {FIELD_BAKE}W, "
+                      f"{ANCHOR_BAKE}W (W > 0)")
 
 
 def timing_views(pipeline, count: int) -> Views:
@@ -166,8 +170,9 @@ def main(argv=None) -> int:
                         help="on the first run, also time a bake from this many views (0: no)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--bakes", default="robust,mean",
-                        help=f"comma-separated bakes to score, from {', '.join(BAKES)} and {FIELD_BAKE}W (robust fusion "
-                        "with the field's colour as one more view of weight W; robust and mean always)")
+                        help=f"comma-separated bakes to score, from {', '.join(BAKES)}, {FIELD_BAKE}W (robust "
+                        f"fusion with the field's colour as one more view of weight W) and {ANCHOR_BAKE}W (the same, "
+                        "the views judged against the field's colour); robust and mean always")
     parser.add_argument("--reuse-field-scores", action="store_true",
                         help="take the field's scores from RUN/bench_row.json (all held-out views, written by "
                         "run_backbone) instead of rendering them again; needs no --max-views")

@@ -283,3 +283,22 @@ def test_a_bad_field_weight_is_refused(weight):
         bake_texture(mesh, views, size=TEXTURE, fallback=lambda p, n: np.zeros_like(p), field_weight=weight)
     with pytest.raises(VAError, match="needs the field's colour"):
         bake_texture(mesh, views, size=TEXTURE, field_weight=0.1)
+
+
+def test_anchored_on_the_field_a_lone_view_loses_a_blob_the_field_does_not_share():
+    rng = np.random.default_rng(1)
+    blue, red = np.float32([0.1, 0.2, 0.9]), np.float32([0.9, 0.1, 0.1])
+    field = np.tile(blue, (200, 1)) + rng.normal(0, 0.01, (200, 3)).astype(np.float32)
+    view = field + rng.normal(0, 0.01, (200, 3)).astype(np.float32)
+    view[:20] = red  # a misprojected blob on a tenth of the points that only this view sees
+    colours = np.stack([view, field], 1)
+    weights = np.tile(np.float32([0.8, 0.1]), (200, 1))  # the view head-on, the field at its weight
+    anchored, share = fuse(colours, weights, "robust", anchor=1)
+    assert np.abs(anchored[:20] - blue).max() < 0.05 and share[:20, 0].max() < 0.05
+    assert share[20:, 0].min() > 0.8  # elsewhere the view keeps its detail
+    medoid, _ = fuse(colours, weights, "robust")  # judged against their medoid, the lone view wins
+    assert np.abs(medoid[:20] - red).max() < 0.1
+    mesh = cube()
+    views = cube_views(mesh, [0.0], [20.0])
+    with pytest.raises(VAError, match="anchoring"):
+        bake_texture(mesh, views, size=TEXTURE, fallback=lambda p, n: np.zeros_like(p), field_anchor=True)

@@ -418,16 +418,18 @@ def apply_harmonisation(colours: np.ndarray, weights: np.ndarray, gains: np.ndar
     return np.where((weights > 0)[..., None], out, colours)
 
 
-def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
+def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust", anchor: Optional[int] = None):
     """Fused colour ``[m, 3]`` and the final per-view weights ``[m, n]`` (normalised per point; zero rows
-    where no view sees the point)."""
+    where no view sees the point). ``anchor``: with robust fusion, the column whose colour is the first
+    consensus in place of the weighted medoid (the field's colour, when it joins as a column): views are
+    then judged by how far they lie from it."""
     if mode not in FUSIONS:
         raise VAError(f"unknown fusion {mode!r}; use one of {', '.join(FUSIONS)}")
     colours, weights = np.ascontiguousarray(colours, np.float32), np.ascontiguousarray(weights, np.float32)
     c, w0 = torch.from_numpy(colours), torch.from_numpy(weights)
     w = w0
     if mode == "robust" and colours.shape[1] > 1:
-        consensus = torch.from_numpy(weighted_medoid(colours, weights))
+        consensus = c[:, anchor] if anchor is not None else torch.from_numpy(weighted_medoid(colours, weights))
         residual = (c - consensus[:, None]).norm(dim=-1)
         noise = torch.from_numpy(view_noise(residual.numpy(), weights > 0))
         for _ in range(ROBUST_ROUNDS):
@@ -465,7 +467,7 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Optional[Fallback] = None, progress: bool = False, atlas=None,
                  harmonise_views: Optional[bool] = None, max_faces: Optional[int] = MAX_TEXTURE_FACES,
-                 field_weight: float = 0.0):
+                 field_weight: float = 0.0, field_anchor: bool = False):
     """UV-unwrap ``mesh`` (first simplified to ``max_faces``, see :func:`simplify_for_texture`) and bake its
     texture from ``views``: ``(TexturedMesh, BakeReport)``. ``atlas``: the ``(vertices, faces, uv)`` of an
     earlier :func:`unwrap` of the same mesh at the same size (the textured mesh's own), reused as it is.
@@ -475,7 +477,9 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     view of this constant weight (a view's own weight is ``cos^2`` of its angle times its edge ramp, so
     0.1 equals a view at 72 degrees); texels only grazing or edge views see lean towards the field's
     colour instead of switching to it where the last view drops out. 0: the fall-back fills unseen
-    texels only.
+    texels only. ``field_anchor`` (robust fusion with a field weight): the field's colour, not the views'
+    medoid, is the consensus the views are first judged against, so a view's colour that lies far from
+    the field (misprojected through a wrong surface) loses its weight even where it is the only view.
 
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
@@ -486,6 +490,8 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
         raise VAError(f"the field's weight in the bake must be a finite number >= 0, got {field_weight}")
     if field_weight > 0 and fallback is None:
         raise VAError("a field weight in the bake needs the field's colour (a fall-back)")
+    if field_anchor and not (field_weight > 0 and fusion == "robust"):
+        raise VAError("anchoring the bake on the field's colour needs robust fusion and a field weight > 0")
     if len(np.asarray(mesh.faces)) == 0:
         raise VAError("the mesh has no faces: nothing to texture")
     seconds = {}
@@ -523,7 +529,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
         prior = np.clip(fallback(points, normals), 0.0, 1.0).astype(np.float32)
         colours = np.concatenate([colours, prior[:, None]], 1)
         weights = np.concatenate([weights, np.full((len(weights), 1), field_weight, np.float32)], 1)
-    fused, share = fuse(colours, weights, fusion)
+    fused, share = fuse(colours, weights, fusion, anchor=n_views if field_anchor else None)
     field_share = float(share[:, n_views:].sum() / max(len(share), 1)) if field_weight > 0 else None
     share = share[:, :n_views]
     if fallback is not None and (~seen).any():
