@@ -514,3 +514,57 @@ def test_the_shared_colour_loss_can_leave_the_opacities_alone(tiny_scene, tmp_pa
     assert all(g is None or bool(g.abs().sum() == 0) for g in grads[True][:n])
     for a, b in zip(grads[False][n:], grads[True][n:]):
         assert a is not None and b is not None and torch.allclose(a, b, atol=1e-7)
+
+
+@pytest.mark.parametrize("method", ["va-neus", "va-ngp"])
+def test_the_branch_colours_can_leave_the_shared_geometry_alone(method, tiny_scene, tmp_path):
+    """``branch_colour_reaches_shared=false``: in phases 2-3 the branch (fused) colour's loss keeps its value
+    but trains only the branches, the attention and the colour decoder (``decode_color``): every other
+    shared parameter (grid, SDF/density network, colour features) and inv_s get exactly zero from it, while
+    the shared path's own loss still reaches them. In phase 1 the colour loss trains the shared field as
+    before."""
+    values, grads = {}, {}
+    ray_bundle = batch = None
+    for reaches in (True, False):
+        trainer = _trainer(method, tiny_scene, tmp_path / f"run{reaches}",
+                           **{"pipeline.model.field.shared_colour_weight": 1.0,
+                              "pipeline.model.field.branch_colour_reaches_shared": reaches})
+        model, field = trainer.model, trainer.model.field
+        if ray_bundle is None:
+            ray_bundle, batch = trainer.pipeline.datamanager.next_train(6)
+        base = list(field.base.parameters())
+        decoder = torch.autograd.grad(field.base.decode_color(torch.randn(5, field.feature_dim)).sum(), base,
+                                      allow_unused=True)
+        cut = [p for p, g in zip(base, decoder) if g is None]  # all but the colour decoder
+        cut += list(getattr(model, "variance", torch.nn.Module()).parameters())
+        kept = list(field.branches.parameters())
+        torch.manual_seed(0)
+        plain = model.colour_loss(model.get_outputs(ray_bundle)["rgb"], batch["rgb"])  # phase 1
+        assert any(g is not None and bool(g.abs().sum() > 0)
+                   for g in torch.autograd.grad(plain, cut, allow_unused=True))
+        for phase in (BRANCHES, FUSION):
+            field.set_phase(phase)
+            with torch.no_grad():
+                torch.manual_seed(1)
+                for p in field.branches.parameters():
+                    p.add_(0.05 * torch.randn_like(p))
+            torch.manual_seed(0)
+            outputs = model.get_outputs(ray_bundle)
+            loss = model.colour_loss(outputs["rgb"], batch["rgb"])
+            values[reaches, phase] = loss.detach()
+            grads[reaches, phase] = torch.autograd.grad(loss, cut + kept, allow_unused=True,
+                                                        retain_graph=True), len(cut)
+            shared = torch.autograd.grad(model.get_loss_dict(outputs, batch)["shared_rgb"], cut, allow_unused=True)
+            assert any(g is not None and bool(g.abs().sum() > 0) for g in shared)
+    for phase in (BRANCHES, FUSION):
+        assert torch.allclose(values[True, phase], values[False, phase], atol=1e-6)
+        (joint, n), (alone, _) = grads[True, phase], grads[False, phase]
+        assert any(g is not None and bool(g.abs().sum() > 0) for g in joint[:n])
+        assert all(g is None or bool(g.abs().sum() == 0) for g in alone[:n])
+        assert any(g is not None and bool(g.abs().sum() > 0) for g in alone[n:])
+
+
+def test_branch_colours_cut_from_the_shared_field_need_the_shared_colour_loss():
+    with pytest.raises(ConfigError, match="shared_colour_weight"):
+        ViewAdaptiveFieldConfig(branch_colour_reaches_shared=False, shared_colour_weight=0.0).validate()
+    ViewAdaptiveFieldConfig(branch_colour_reaches_shared=False, shared_colour_weight=1.0).validate()

@@ -107,6 +107,14 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     Measured on three real outputs: the shared path's fit at the training views falls back to `neus`'s
     (-0.18 to +0.04 dB, where the undetached term gives +0.70 to +1.01), so what the term buys there goes
     through the opacities; off (benchmarks/RESULTS.md, "The shared-path colour loss without the opacities")."""
+    branch_colour_reaches_shared: bool = True
+    """Let the branch (and fused) colours' photometric loss reshape the shared field in phases 2-3, as in
+    the paper. Off: that loss trains the branches, the attention and the colour decoder only (the shared
+    features enter the branch path detached, and the training render of those colours is composited with
+    detached rendering weights), so the shared geometry and the shared colour features learn from the
+    shared path's own colour loss (``shared_colour_weight``, which must then be > 0), the masks and the
+    backbone's priors, as the backbone does: the branches can no longer widen or bulge thin parts to
+    fit one view's colours."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
     (every view's branch plus the attention); its other visible samples use their own view's branch,
@@ -150,6 +158,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
                               "diagnostics_scale, fused_samples_per_ray and consistent_colour_cast must be >= 0")
         if not 0.0 <= self.regularizers_shared_scale <= 1.0:
             raise ConfigError(f"regularizers_shared_scale must be in [0, 1], got {self.regularizers_shared_scale}")
+        if not self.branch_colour_reaches_shared and self.branches and self.shared_colour_weight <= 0:
+            raise ConfigError("branch_colour_reaches_shared=false needs shared_colour_weight > 0: without it "
+                              "nothing trains the shared field's colour while the branches are on")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:
@@ -214,6 +225,12 @@ class ViewAdaptiveField(Field):
     def detached_weight_keys(self) -> Tuple[str, ...]:
         """Colours the model composites with detached rendering weights (see ``shared_colour_detach_weights``)."""
         return ("rgb_shared",) if self.config.shared_colour_detach_weights else ()
+
+    @property
+    def detach_rgb_weights(self) -> bool:
+        """Whether the model composites the training render of ``rgb`` with detached rendering weights (the
+        branch colours, while ``branch_colour_reaches_shared`` is off and the branches train)."""
+        return self.training and not self.config.branch_colour_reaches_shared and self.branches_active()
 
     def branches_active(self) -> bool:
         return self.branches is not None and self.current_phase >= BRANCHES
@@ -289,11 +306,12 @@ class ViewAdaptiveField(Field):
                          canonical_shared=cfg.canonical == "shared", also_canonical=self.also_canonical,
                          min_sample_weight=cfg.min_sample_weight,
                          fused_samples_per_ray=cfg.fused_samples_per_ray if self.fusion_active() else 0,
-                         shared_colour=self.training and cfg.shared_colour_weight > 0)
+                         shared_colour=self.training and cfg.shared_colour_weight > 0,
+                         branch_detached=self.training and not cfg.branch_colour_reaches_shared)
 
     def _every_sample(self, flat: torch.Tensor, views: torch.Tensor, mode: "ColorMode") -> Dict[str, torch.Tensor]:
         """Every sample ``[S, D]`` takes the adaptive path (no rendering weights, or no culling)."""
-        out = self._adaptive(flat, views, None, mode)
+        out = self._adaptive(flat.detach() if mode.branch_detached else flat, views, None, mode)
         if (mode.also_canonical and mode.canonical_shared) or mode.shared_colour:
             shared_rgb = self.base.decode_color(flat)
             if mode.also_canonical and mode.canonical_shared:
@@ -307,12 +325,13 @@ class ViewAdaptiveField(Field):
         """The shared colour everywhere, overwritten where ``routes`` send a sample down the adaptive path
         (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``)."""
         index = routes.adaptive
-        sub = self._adaptive(flat[index], views[index], weights[index], mode)
+        source = flat.detach() if mode.branch_detached else flat  # what the branch path (``rgb``) sees
+        sub = self._adaptive(source[index], views[index], weights[index], mode)
         base_rgb = self.base.decode_color(flat)
-        rgb = base_rgb.index_copy(0, index, sub.pop("rgb"))
+        rgb = (self.base.decode_color(source) if mode.branch_detached else base_rgb).index_copy(0, index, sub.pop("rgb"))
         if routes.own_only is not None:
             own = routes.own_only
-            rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(flat[own], views[own])))
+            rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(source[own], views[own])))
         out = {"rgb": rgb}
         if mode.shared_colour:
             out["rgb_shared"] = base_rgb
@@ -463,6 +482,8 @@ class ColorMode:
     """Fused samples per ray while fusion is on (0: every visible sample; always 0 without fusion)."""
     shared_colour: bool = False
     """``rgb_shared`` (the shared path's colour of every sample) is wanted for ``shared_colour_weight``."""
+    branch_detached: bool = False
+    """The branch path sees the shared features detached (``branch_colour_reaches_shared`` off, training)."""
 
 
 @dataclass(frozen=True)

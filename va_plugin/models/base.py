@@ -135,6 +135,12 @@ class Model(nn.Module):
             groups["view_blur"] = list(self.view_blur.parameters())
         return groups
 
+    def rgb_weights(self, weights: torch.Tensor) -> torch.Tensor:
+        """The rendering weights to composite ``rgb`` with: detached while the field asks for it (a
+        view-adaptive field whose branch colours must not reshape the shared geometry, see
+        ``branch_colour_reaches_shared``), else ``weights`` themselves."""
+        return weights.detach() if getattr(getattr(self, "field", None), "detach_rgb_weights", False) else weights
+
     def composite_other_colours(self, outputs: Dict[str, torch.Tensor], color: Dict[str, torch.Tensor],
                                 weights: torch.Tensor, per_ray: Callable[[torch.Tensor], torch.Tensor]
                                 ) -> Dict[str, torch.Tensor]:

@@ -389,7 +389,7 @@ class NeuSModel(Model):
             scale = (-(directions * normals).sum(-1, keepdim=True)).clamp(0.0, 1.0) ** self.config.colour_angle_power
             color = dict(color, rgb=losses.scale_gradient(color["rgb"], scale.detach()))
         outputs = {
-            "rgb": renderers.render_rgb(weights, unpack(color["rgb"]), self.background),
+            "rgb": renderers.render_rgb(self.rgb_weights(weights), unpack(color["rgb"]), self.background),
             "accumulation": weights.sum(-1, keepdim=True),
             "depth": renderers.render_depth(weights, samples.t_mid),
             "normal": (weights[..., None] * unpack(normals)).sum(-2),

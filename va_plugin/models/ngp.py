@@ -172,7 +172,7 @@ class NGPModel(Model):
         if self.training:
             self.samples_per_ray = positions.shape[0] / max(len(ray_bundle), 1)
         outputs = {
-            "rgb": renderers.render_rgb(weights, scatter(color["rgb"], keep), self.background),
+            "rgb": renderers.render_rgb(self.rgb_weights(weights), scatter(color["rgb"], keep), self.background),
             "accumulation": weights.sum(-1, keepdim=True),
             "depth": renderers.render_depth(weights, samples.t_mid),
             "weights": weights[keep],  # [n_kept], like the positions given to field.color
