@@ -4,9 +4,10 @@ Rows, each adding one component to the one before (the view-adaptive field's swi
 ``pipeline.model.field.``): Baseline (the original method); + view-adaptive branches (``fusion=false``,
 ``entropy_weight=0``, ``consistency_weight=0``); + self-attention fusion; + entropy regularization; +
 consistency loss (the full model). For the neus backbone, also the pieces of issue 21 each against the
-baseline: camera refinement, per-view deformation, trimmed losses, the full model with the first
-two, and the full model whose branch colours do not reshape the shared field (``PIECES``). Every adaptive row forces the adaptive phases
-(``skip_consistent_scenes=false``), so no row silently falls back to the baseline. Writes into OUT:
+baseline: camera refinement, per-view deformation, trimmed losses, the full model with the first two,
+and the full model whose branch colours do not reshape the shared field (``PIECES``). Every adaptive row
+forces the adaptive phases (``skip_consistent_scenes=false``), so no row silently falls back to the
+baseline. Writes into OUT:
 ablation.md (Table 4 with step-by-step changes beside the paper's), ablation.csv/json, ablation_time.png,
 rows.jsonl, scenes/, runs/.
 
@@ -44,7 +45,8 @@ PIECES = [
     ("Baseline + trimmed losses", False, (MODEL + "trim_fraction=0.1",)),
     ("Full model + camera refinement + deformation", True,
      (MODEL + "camera_opt.mode=SO3", MODEL + "view_deformation.enabled=true")),
-    ("Full model, branch colours cut from the shared field", True, (FIELD + "branch_colour_reaches_shared=false",)),
+    ("Full model, branch colours cut from the shared field", True,
+     (FIELD + "branch_colour_reaches_shared=false",)),
 ]
 """Geometry- and pose-aware pieces (issue 21), each against the baseline: (label, view-adaptive?, overrides).
 They are options of the ``neus`` model, so these rows exist for the neus backbone only."""

@@ -328,7 +328,8 @@ class ViewAdaptiveField(Field):
         source = flat.detach() if mode.branch_detached else flat  # what the branch path (``rgb``) sees
         sub = self._adaptive(source[index], views[index], weights[index], mode)
         base_rgb = self.base.decode_color(flat)
-        rgb = (self.base.decode_color(source) if mode.branch_detached else base_rgb).index_copy(0, index, sub.pop("rgb"))
+        rgb = self.base.decode_color(source) if mode.branch_detached else base_rgb
+        rgb = rgb.index_copy(0, index, sub.pop("rgb"))
         if routes.own_only is not None:
             own = routes.own_only
             rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(source[own], views[own])))
