@@ -223,14 +223,13 @@ class ViewAdaptiveField(Field):
 
     @property
     def detached_weight_keys(self) -> Tuple[str, ...]:
-        """Colours the model composites with detached rendering weights (see ``shared_colour_detach_weights``)."""
-        return ("rgb_shared",) if self.config.shared_colour_detach_weights else ()
-
-    @property
-    def detach_rgb_weights(self) -> bool:
-        """Whether the model composites the training render of ``rgb`` with detached rendering weights (the
-        branch colours, while ``branch_colour_reaches_shared`` is off and the branches train)."""
-        return self.training and not self.config.branch_colour_reaches_shared and self.branches_active()
+        """Colours the model composites with detached rendering weights: ``rgb_shared`` with
+        ``shared_colour_detach_weights``, and the training render of ``rgb`` (the branch colours) while
+        ``branch_colour_reaches_shared`` is off and the branches train."""
+        keys = ("rgb_shared",) if self.config.shared_colour_detach_weights else ()
+        if self.training and not self.config.branch_colour_reaches_shared and self.branches_active():
+            keys += ("rgb",)
+        return keys
 
     def branches_active(self) -> bool:
         return self.branches is not None and self.current_phase >= BRANCHES

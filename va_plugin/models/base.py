@@ -136,10 +136,11 @@ class Model(nn.Module):
         return groups
 
     def rgb_weights(self, weights: torch.Tensor) -> torch.Tensor:
-        """The rendering weights to composite ``rgb`` with: detached while the field asks for it (a
-        view-adaptive field whose branch colours must not reshape the shared geometry, see
-        ``branch_colour_reaches_shared``), else ``weights`` themselves."""
-        return weights.detach() if getattr(getattr(self, "field", None), "detach_rgb_weights", False) else weights
+        """The rendering weights to composite ``rgb`` with: detached while the field lists ``rgb`` in its
+        ``detached_weight_keys`` (a view-adaptive field whose branch colours must not reshape the shared
+        geometry, see ``branch_colour_reaches_shared``), else ``weights`` themselves."""
+        detached = getattr(getattr(self, "field", None), "detached_weight_keys", ())
+        return weights.detach() if "rgb" in detached else weights
 
     def composite_other_colours(self, outputs: Dict[str, torch.Tensor], color: Dict[str, torch.Tensor],
                                 weights: torch.Tensor, per_ray: Callable[[torch.Tensor], torch.Tensor]
