@@ -148,8 +148,8 @@ def rig_check(source: Path) -> dict:
 
 def summary_figure(inputs, methods, out: Path, frames: int = 3, resolution: int = 128):
     """One row per input: its first training view, then ``frames`` grey turntable frames of the mesh of
-    each run name in ``methods`` (``RUNS/INPUT-NAME``; SyncDreamer orbit, 30 deg elevation); written to
-    ``OUT/generated_meshes.png``."""
+    each run name in ``methods`` (``RUNS/INPUT-NAME``; SyncDreamer orbit, 30 deg elevation), white where
+    that run has no mesh; inputs with no mesh at all are left out. Written to ``OUT/generated_meshes.png``."""
     import cv2
     import numpy as np
 
@@ -161,13 +161,14 @@ def summary_figure(inputs, methods, out: Path, frames: int = 3, resolution: int 
     rows = []
     for name, source in inputs:
         meshes = [out / "runs" / f"{name}-{m}" / "mesh.ply" for m in methods]
-        if not all(m.is_file() for m in meshes):
+        if not any(m.is_file() for m in meshes):
             continue
         image = resolve_dataparser(source).setup().get_outputs("train").images[0].numpy()
         if image.shape[-1] == 4:
             image = image[..., :3] * image[..., 3:] + (1.0 - image[..., 3:])
         tiles = [cv2.resize(image, (resolution, resolution), interpolation=cv2.INTER_AREA)]
-        tiles += [mesh_views([load_mesh(m)], frames, resolution) for m in meshes]
+        tiles += [mesh_views([load_mesh(m)], frames, resolution) if m.is_file()
+                  else np.ones((resolution, frames * resolution, 3), np.float32) for m in meshes]
         rows.append(np.concatenate(tiles, axis=1))
     if not rows:
         return None
@@ -303,7 +304,9 @@ def main(argv=None) -> int:
             row["residual_spread_db"] = round(residual_spread_db(views), 2)
         row["shared_path_psnr"] = shared_path_psnr(run_dir)
     write_tables(rows, args.out)
-    figure = summary_figure(inputs, [tag_of(m) for m in methods], args.out)
+    # every run in the folder, this call's first: a second call with other --methods keeps the first's
+    figure = summary_figure(inputs, list(dict.fromkeys([tag_of(m) for m in methods] + [r["method"] for r in rows])),
+                            args.out)
     if figure is not None:
         print(f"wrote {figure}")
     adaptive_runs = [(f"{name} {r['method']}", args.out / "runs" / f"{name}-{r['method']}")

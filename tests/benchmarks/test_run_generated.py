@@ -87,3 +87,19 @@ def test_a_variant_made_with_set_needs_a_label_and_reaches_the_run(gen, tmp_path
         gen.main(["--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--methods", "va-neus",
                   "--set", "pipeline.model.field.shared_colour_weight=1", "--label", "shared"])
     assert seen == [("va-neus", "a-va-neus-shared", ["pipeline.model.field.shared_colour_weight=1"])]
+
+
+def test_the_mesh_figure_keeps_a_column_for_a_run_without_a_mesh(gen, tiny_scene, tmp_path):
+    import trimesh
+
+    from va_plugin.data.images import read_image
+
+    (tmp_path / "runs" / "one-neus").mkdir(parents=True)
+    trimesh.creation.icosphere(subdivisions=2, radius=0.4).export(tmp_path / "runs" / "one-neus" / "mesh.ply")
+    inputs = [("one", tiny_scene), ("two", tiny_scene)]  # "two" has no mesh at all: no row
+    path = gen.summary_figure(inputs, ["neus", "va-neus"], tmp_path, frames=2, resolution=24)
+    image = read_image(path)
+    assert image.shape[:2] == (24, 24 * (1 + 2 * 2))
+    neus, missing = image[:, 24:72], image[:, 72:]
+    assert neus.min() < 0.9 and missing.min() > 0.99  # the sphere is drawn; the absent run is white
+    assert gen.summary_figure([("two", tiny_scene)], ["neus"], tmp_path) is None
