@@ -18,6 +18,7 @@ from va_plugin.model_components import losses, renderers
 from va_plugin.model_components.camera_opt import CameraOptimizerConfig
 from va_plugin.model_components.view_deformation import ViewDeformationConfig
 from va_plugin.model_components.robust import per_ray_mask_error, per_ray_rgb_error, trimmed_mean
+from va_plugin.model_components.view_uncertainty import ViewUncertainty
 from va_plugin.model_components.neus import (SingleVariance, neus_alpha, normal_smoothness, sdf_band, section_alpha,
                                              surface_crossings)
 from va_plugin.model_components.occupancy_grid import scatter
@@ -131,6 +132,17 @@ class NeuSModelConfig(ModelConfig):
     trim_fraction: float = 0.0
     """Robust colour and mask losses: each batch drops this share of its rays with the largest error
     from the loss (0: plain means). For generated views that are wrong in patches."""
+    view_uncertainty: float = 0.0
+    """Per-view uncertainty of the colour loss (0 turns it off): each foreground ray's colour error is
+    weighted by ``(reference / running error of its view) ** view_uncertainty``, so a view the shared field
+    explains worse counts less (1: inverse-variance weights, the optimum of a learned per-view uncertainty
+    sigma with the loss ``e / 2 sigma^2 + log sigma``). Weights are clamped to [1/4, 4], constant, and
+    normalised to mean 1 (va_plugin/model_components/view_uncertainty.py)."""
+    view_uncertainty_grid: int = 1
+    """With ``view_uncertainty``: each view split into this many cells a side, each with its own running
+    error, so that a wrong patch of a view counts less rather than the whole view (1: one per view)."""
+    view_uncertainty_start: float = 0.1
+    """Share of the schedule before the per-view weights apply (the running errors are kept from the start)."""
     camera_opt: CameraOptimizerConfig = dataclasses.field(default_factory=CameraOptimizerConfig)  # "field" is taken
     """Per-view camera refinement (off by default; its learning rate is the "camera_opt" optimizer group)."""
     view_deformation: ViewDeformationConfig = dataclasses.field(default_factory=ViewDeformationConfig)
@@ -148,6 +160,7 @@ class NeuSModel(Model):
             raise ConfigError("the neus model needs a field whose geometry is an SDF")
         if not 0.0 <= config.trim_fraction < 1.0:
             raise ConfigError(f"trim_fraction must be in [0, 1), got {config.trim_fraction}")
+        self.view_uncertainty = self._view_uncertainty(config, scene)
         if config.smoothness_weight < 0 or config.smoothness_radius <= 0 or config.smoothness_points < 1:
             raise ConfigError("smoothness_weight must be >= 0, smoothness_radius > 0 and smoothness_points >= 1, got "
                               f"{config.smoothness_weight}, {config.smoothness_radius} and {config.smoothness_points}")
@@ -244,9 +257,28 @@ class NeuSModel(Model):
     def sharpness(self) -> Optional[float]:
         return float(self.variance.inv_s().detach())
 
+    @staticmethod
+    def _view_uncertainty(config: NeuSModelConfig, scene: SceneInfo) -> Optional[ViewUncertainty]:
+        power, grid, start = config.view_uncertainty, config.view_uncertainty_grid, config.view_uncertainty_start
+        if not (math.isfinite(power) and power >= 0):
+            raise ConfigError(f"view_uncertainty must be a finite number >= 0, got {power}")
+        if not (isinstance(grid, int) and 1 <= grid <= 64) or not 0.0 <= start <= 1.0:
+            raise ConfigError("view_uncertainty_grid must be an integer from 1 to 64 and view_uncertainty_start "
+                              f"in [0, 1], got {grid} and {start}")
+        if power == 0:
+            return None
+        cameras = scene.train_cameras
+        if grid > 1 and cameras is None:
+            raise ConfigError("view_uncertainty_grid > 1 needs the training cameras' image size")
+        width, height = (cameras.width, cameras.height) if cameras is not None else (1, 1)
+        return ViewUncertainty(scene.num_train_views, grid, power, width, height)
+
     def diagnostics(self) -> Dict[str, float]:
         out = {**super().diagnostics(), "inv_s": self.sharpness(),
                "samples_per_ray": round(self.samples_per_ray, 3), "probed_per_ray": round(self.probed_per_ray, 3)}
+        if self.view_uncertainty is not None:
+            weights = self.view_uncertainty.view_weights()
+            out["view_weight_min"], out["view_weight_max"] = min(weights), max(weights)
         if self.camera_optimizer is not None:
             summary = self.camera_optimizer.summary()
             out["camera_max_deg"] = summary["max_rotation_deg"]
@@ -402,7 +434,17 @@ class NeuSModel(Model):
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
         cfg = self.config
         trim = cfg.trim_fraction > 0
-        if "colour_weight" in outputs:
+        if self.view_uncertainty is not None and self.training and "pixel" in batch:
+            error = per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss)
+            keep = batch["mask"][:, 0] > 0.5 if "mask" in batch else None
+            per_ray = error
+            if "colour_weight" in outputs:
+                per_ray = per_ray * (outputs["colour_weight"] / outputs["colour_weight"].mean().clamp_min(1e-6))
+            if self.step >= cfg.view_uncertainty_start * self.scene.max_steps:
+                per_ray = per_ray * self.view_uncertainty.weights(batch["pixel"], keep)
+            self.view_uncertainty.update(batch["pixel"], error, keep)
+            loss = {"rgb": trimmed_mean(per_ray, cfg.trim_fraction)}
+        elif "colour_weight" in outputs:
             weight = outputs["colour_weight"]
             per_ray = (per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss)
                        * (weight / weight.mean().clamp_min(1e-6)))
