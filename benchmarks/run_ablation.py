@@ -4,7 +4,8 @@ Rows, each adding one component to the one before (the view-adaptive field's swi
 ``pipeline.model.field.``): Baseline (the original method); + view-adaptive branches (``fusion=false``,
 ``entropy_weight=0``, ``consistency_weight=0``); + self-attention fusion; + entropy regularization; +
 consistency loss (the full model). For the neus backbone, also the pieces of issue 21 each against the
-baseline: camera refinement, per-view deformation, trimmed losses, the full model with the first two,
+baseline: camera refinement, per-view deformation, trimmed losses, per-view uncertainty of the colour loss
+(per cell of a 4x4 split), the full model with the first two,
 and the full model whose branch colours do not reshape the shared field (``PIECES``). Every adaptive row
 forces the adaptive phases (``skip_consistent_scenes=false``), so no row silently falls back to the
 baseline. Writes into OUT:
@@ -43,6 +44,8 @@ PIECES = [
     ("Baseline + camera refinement", False, (MODEL + "camera_opt.mode=SO3",)),
     ("Baseline + per-view deformation", False, (MODEL + "view_deformation.enabled=true",)),
     ("Baseline + trimmed losses", False, (MODEL + "trim_fraction=0.1",)),
+    ("Baseline + per-view uncertainty (4x4 cells)", False,
+     (MODEL + "view_uncertainty=1", MODEL + "view_uncertainty_grid=4")),
     ("Full model + camera refinement + deformation", True,
      (MODEL + "camera_opt.mode=SO3", MODEL + "view_deformation.enabled=true")),
     ("Full model, branch colours cut from the shared field", True,
