@@ -434,20 +434,18 @@ class NeuSModel(Model):
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
         cfg = self.config
         trim = cfg.trim_fraction > 0
-        if self.view_uncertainty is not None and self.training and "pixel" in batch:
+        uncertain = self.view_uncertainty is not None and self.training and "pixel" in batch
+        if uncertain or "colour_weight" in outputs:
             error = per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss)
-            keep = batch["mask"][:, 0] > 0.5 if "mask" in batch else None
             per_ray = error
             if "colour_weight" in outputs:
-                per_ray = per_ray * (outputs["colour_weight"] / outputs["colour_weight"].mean().clamp_min(1e-6))
-            if self.step >= cfg.view_uncertainty_start * self.scene.max_steps:
-                per_ray = per_ray * self.view_uncertainty.weights(batch["pixel"], keep)
-            self.view_uncertainty.update(batch["pixel"], error, keep)
-            loss = {"rgb": trimmed_mean(per_ray, cfg.trim_fraction)}
-        elif "colour_weight" in outputs:
-            weight = outputs["colour_weight"]
-            per_ray = (per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss)
-                       * (weight / weight.mean().clamp_min(1e-6)))
+                weight = outputs["colour_weight"]
+                per_ray = per_ray * (weight / weight.mean().clamp_min(1e-6))
+            if uncertain:
+                keep = batch["mask"][:, 0] > 0.5 if "mask" in batch else None
+                if self.step >= cfg.view_uncertainty_start * self.scene.max_steps:
+                    per_ray = per_ray * self.view_uncertainty.weights(batch["pixel"], keep)
+                self.view_uncertainty.update(batch["pixel"], error, keep)
             loss = {"rgb": trimmed_mean(per_ray, cfg.trim_fraction)}
         else:
             loss = {"rgb": trimmed_mean(per_ray_rgb_error(outputs["rgb"], batch["rgb"], cfg.rgb_loss),
