@@ -16,11 +16,7 @@ import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
 
 from va_plugin.data.images import read_image  # noqa: E402
-
-
-def psnr(a, b):
-    return float(-10 * np.log10(max(np.mean((a - b) ** 2), 1e-10)))
-
+from va_plugin.eval.image import psnr  # noqa: E402
 
 out, n = Path(sys.argv[1]), int(sys.argv[2])
 runs = [arg.split("=", 1) for arg in sys.argv[3:]]
