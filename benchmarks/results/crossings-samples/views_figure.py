@@ -18,9 +18,17 @@ import numpy as np  # noqa: E402
 from va_plugin.data.images import read_image  # noqa: E402
 from va_plugin.eval.image import psnr  # noqa: E402
 
+USAGE = "usage: python views_figure.py OUT.png N LABEL=RENDERS_DIR [LABEL=RENDERS_DIR ...]"
+if len(sys.argv) < 4 or not sys.argv[2].isdigit() or int(sys.argv[2]) < 1 \
+        or any("=" not in arg for arg in sys.argv[3:]):
+    sys.exit(USAGE)
 out, n = Path(sys.argv[1]), int(sys.argv[2])
 runs = [arg.split("=", 1) for arg in sys.argv[3:]]
 names = sorted(p.name for p in Path(runs[0][1]).glob("view_*.png"))
+for label, folder in runs:
+    if not names or sorted(p.name for p in Path(folder).glob("view_*.png")) != names:
+        sys.exit(f"{label}: {folder} must hold the same view_XXX.png files (va-export render) as the first run's "
+                 f"folder, and at least one")
 pairs = {label: [read_image(Path(d) / name)[..., :3] for name in names] for label, d in runs}
 width = pairs[runs[0][0]][0].shape[1] // 2
 renders = {label: [p[:, :width] for p in ps] for label, ps in pairs.items()}
