@@ -2,10 +2,11 @@
 
 For each run folder: extract the mesh (marching cubes, 128^3), bake a texture from the training views with
 robust fusion (per-view colour harmonisation, then a consensus) and with plain angle-weighted averaging
-(``--bakes`` adds robust fusion without the harmonisation and the average with it), render both by ray casting at every held-out view,
-and score them with the field's own renders (PSNR, SSIM, LPIPS). Also times the bake from 16 views (the
-4 inputs plus 12 held-out views as stand-ins) on the same mesh. One JSON line per run in --out; a table
-of all lines at the end.
+(``--bakes`` adds robust fusion without the harmonisation and the average with it), render both by ray
+casting at every held-out view, and score them with the field's own renders (PSNR, SSIM, LPIPS). The
+textured renders take one ray through each pixel centre, as the field's do (``--supersample 2``: 2x2 rays
+a pixel, the setting before 2026-11-28). Also times the bake from 16 views (the 4 inputs plus 12 held-out
+views as stand-ins) on the same mesh. One JSON line per run in --out; a table of all lines at the end.
 
     OMP_NUM_THREADS=1 python benchmarks/run_texture.py --runs outputs/texture20/runs/*_l2 \\
         --out outputs/texture20/l2.jsonl
@@ -26,7 +27,7 @@ from va_plugin.cli.common import friendly_errors
 from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
 from va_plugin.eval.evaluate import ground_truth_mesh_path, image_metrics, load_mesh
-from va_plugin.eval.mesh_render import textured_mesh_metrics
+from va_plugin.eval.mesh_render import SCORE_SUPERSAMPLE, check_supersample, textured_mesh_metrics
 from va_plugin.export.mesh import extract_mesh
 from va_plugin.export.texture import (MAX_TEXTURE_FACES, Views, bake_picture, bake_texture, check_texture_size,
                                       field_fallback, run_views)
@@ -101,10 +102,10 @@ def run_mesh(pipeline, source: str, resolution: int):
 
 def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean"),
              reuse_field: bool = False, mesh_source: str = "extracted", mesh_resolution: int = 128,
-             max_faces: int = MAX_TEXTURE_FACES) -> dict:
+             max_faces: int = MAX_TEXTURE_FACES, supersample: int = SCORE_SUPERSAMPLE) -> dict:
     pipeline, state = load_run(run, device="cpu")
     record = {"run": str(run), "steps": int(state["step"]), "mesh": mesh_source, "texture_size": size,
-              "max_faces": max_faces}
+              "max_faces": max_faces, "supersample": supersample}
     if mesh_source == "extracted":
         record["mesh_resolution"] = mesh_resolution
     started = time.perf_counter()
@@ -123,7 +124,8 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
                                         max_faces=max_faces, **bake_options(fusion))
         record["faces_textured"] = len(textured.faces)
         atlas = (textured.vertices, textured.faces, textured.uv)  # unwrap once, bake twice
-        scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False)
+        scores = textured_mesh_metrics(pipeline, textured, max_views=max_views, progress=False,
+                                       supersample=supersample)
         record[fusion] = {**{k: scores[k] for k in KEYS}, **report.summary()}
         if fusion == "robust" and mesh_source == "extracted" and mesh_resolution == 128:
             bake_picture(textured, report, run / "texture_bake.png")
@@ -135,12 +137,13 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
 
 
 def resume_key(record: dict) -> tuple:
-    """What makes two records the same measurement: the run, the mesh (source and grid), the texture size and
-    the face cap. Records written before these were kept are read as the defaults of then (extracted, 128,
-    1024, no cap)."""
+    """What makes two records the same measurement: the run, the mesh (source and grid), the texture size, the
+    face cap and the rays a pixel of the textured renders. Records written before these were kept are read
+    as the defaults of then (extracted, 128, 1024, no cap, 2x2 rays)."""
     mesh = record.get("mesh", "extracted")
     resolution = record.get("mesh_resolution", 128) if mesh == "extracted" else None
-    return record["run"], mesh, resolution, record.get("texture_size", 1024), record.get("max_faces", 0)
+    return (record["run"], mesh, resolution, record.get("texture_size", 1024), record.get("max_faces", 0),
+            record.get("supersample", 2))
 
 
 def table(records) -> str:
@@ -184,7 +187,12 @@ def main(argv=None) -> int:
     parser.add_argument("--max-faces", type=int, default=MAX_TEXTURE_FACES,
                         help=f"simplify the mesh to at most this many faces before the unwrap (default "
                         f"{MAX_TEXTURE_FACES}, as va-export; 0 keeps every face)")
+    parser.add_argument("--supersample", type=int, default=SCORE_SUPERSAMPLE,
+                        help=f"rays per pixel side for the textured meshes' renders (default {SCORE_SUPERSAMPLE}: "
+                        "one through each pixel centre, as the field's renders; 2 averages 2x2 rays, as before "
+                        "2026-11-28)")
     args = parser.parse_args(argv)
+    check_supersample(args.supersample, "--supersample")
     if args.max_faces < 0 or 0 < args.max_faces < 4:
         raise ConfigError(f"--max-faces must be 0 (keep every face) or at least 4, got {args.max_faces}")
     if not 16 <= args.mesh_resolution <= 512:
@@ -201,12 +209,13 @@ def main(argv=None) -> int:
             record = json.loads(line)
             done[resume_key(record)] = record
     key = lambda run: resume_key({"run": str(run), "mesh": args.mesh, "mesh_resolution": args.mesh_resolution,  # noqa: E731
-                                  "texture_size": args.texture_size, "max_faces": args.max_faces})
+                                  "texture_size": args.texture_size, "max_faces": args.max_faces,
+                                  "supersample": args.supersample})
     for k, run in enumerate(args.runs):
         if key(run) in done:
             continue
         record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes,
-                          args.reuse_field_scores, args.mesh, args.mesh_resolution, args.max_faces)
+                          args.reuse_field_scores, args.mesh, args.mesh_resolution, args.max_faces, args.supersample)
         done[key(run)] = record
         with args.out.open("a") as f:
             f.write(json.dumps(record) + "\n")

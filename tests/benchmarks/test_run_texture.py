@@ -35,6 +35,14 @@ def test_scores_field_and_both_fusions_and_resumes(run, tmp_path, capsys):
     assert script.main(argv + ["--mesh-resolution", "32"]) == 0
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert [r.get("mesh_resolution") for r in records] == [128, 32]
+    assert [r["supersample"] for r in records] == [1, 1]
+    # 2x2 rays a pixel is another measurement too; a record without the key was scored with 2x2 rays
+    assert script.main(argv + ["--supersample", "2"]) == 0
+    records = [json.loads(line) for line in out.read_text().splitlines()]
+    assert [r["supersample"] for r in records] == [1, 1, 2]
+    assert records[2]["field"] == records[0]["field"] and records[2]["robust"]["psnr"] != records[0]["robust"]["psnr"]
+    assert script.resume_key({k: v for k, v in records[2].items() if k != "supersample"}) == script.resume_key(records[2])
+    assert script.main(argv + ["--supersample", "0"]) == 2
     assert script.main(argv[:-7] + ["100", "--max-views", "1"]) == 2  # not a power of two: one line, exit 2
     assert script.main(argv[:-2] + ["--bakes", "median"]) == 2  # an unknown bake: one line, exit 2
 

@@ -78,5 +78,22 @@ def test_eval_scores_field_and_textured_mesh_side_by_side(run, tmp_path, capsys)
     for key in ("psnr", "mesh_psnr", "mesh_ssim", "mesh_lpips"):
         assert np.isfinite(result[key])
     assert result["texture_params"]["size"] == 32
+    assert result["texture_params"]["supersample"] == 1  # one ray through each pixel centre, as the field
     out = capsys.readouterr().out
     assert "textured mesh" in out and "field" in out
+    # 2x2 rays a pixel: the same bake scored with anti-aliased edges, so other scores
+    code = eval_cli.main(["--load-dir", str(run), "--texture", "--texture-size", "32", "--mesh-resolution", "24",
+                          "--max-views", "1", "--output", str(tmp_path / "eval2.json"), "--no-progress",
+                          "--device", "cpu", "--texture-supersample", "2"])
+    assert code == 0, capsys.readouterr().err
+    blended = json.loads((tmp_path / "eval2.json").read_text())
+    assert blended["texture_params"]["supersample"] == 2 and blended["psnr"] == result["psnr"]
+    assert blended["mesh_psnr"] != result["mesh_psnr"]
+
+
+@pytest.mark.parametrize("value", ["0", "9"])
+def test_eval_refuses_a_bad_number_of_rays_a_pixel(run, tmp_path, value, capsys):
+    code = eval_cli.main(["--load-dir", str(run), "--texture", "--texture-supersample", value,
+                          "--output", str(tmp_path / "eval.json"), "--no-progress"])
+    one_line_error(capsys, code, "--texture-supersample must be a whole number")
+    assert list(tmp_path.iterdir()) == []

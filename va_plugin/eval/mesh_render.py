@@ -49,13 +49,35 @@ def render_on_background(renderer: MeshRenderer, cameras: Cameras, index: int, b
     return (rgba[..., :3] * rgba[..., 3:] + bg * (1.0 - rgba[..., 3:])).astype(np.float32)
 
 
+SCORE_SUPERSAMPLE = 1
+"""Rays per pixel side when a textured mesh is scored: one ray through each pixel centre, the way the field's
+novel views are rendered, so the two are compared under the same pixel sampling. 2 (2x2 rays averaged)
+anti-aliases the edges but also box-filters the texture inside them (benchmarks/RESULTS.md, "Textured
+meshes scored like the field")."""
+MAX_SUPERSAMPLE = 8
+
+
+def check_supersample(value: int, name: str = "supersample") -> int:
+    """``value`` when it is a whole number of rays per pixel side in [1, MAX_SUPERSAMPLE], else ConfigError
+    (saying ``name``, an option's name)."""
+    from va_plugin.errors import ConfigError
+
+    if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_SUPERSAMPLE:
+        raise ConfigError(f"{name} must be a whole number of rays per pixel side in [1, {MAX_SUPERSAMPLE}], "
+                          f"got {value!r}")
+    return int(value)
+
+
 def textured_mesh_metrics(pipeline, textured, image_scale: float = 1.0, max_views=None, use_lpips: bool = True,
-                          progress: bool = True, render_dir=None):
-    """PSNR, SSIM and LPIPS of a textured mesh rendered at the run's held-out views (ray casting), scored
-    exactly like the field's novel views (:func:`va_plugin.eval.evaluate.image_metrics`)."""
+                          progress: bool = True, render_dir=None, supersample: int = SCORE_SUPERSAMPLE):
+    """PSNR, SSIM and LPIPS of a textured mesh rendered at the run's held-out views (ray casting, ``supersample``
+    x ``supersample`` rays a pixel), scored exactly like the field's novel views
+    (:func:`va_plugin.eval.evaluate.image_metrics`)."""
     from va_plugin.eval.evaluate import image_metrics
 
+    supersample = check_supersample(supersample)
     renderer = textured_renderer(textured)
     background = pipeline.datamanager.test.background if pipeline.datamanager.test is not None else (1, 1, 1)
     return image_metrics(pipeline, image_scale, max_views, use_lpips, progress, render_dir,
-                         render_fn=lambda cameras, i: render_on_background(renderer, cameras, i, background))
+                         render_fn=lambda cameras, i: render_on_background(renderer, cameras, i, background,
+                                                                           supersample=supersample))
