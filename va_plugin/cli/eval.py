@@ -53,9 +53,8 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.scene is not None and not (args.scene / "scene.json").is_file():
         raise ConfigError(f"{args.scene} holds no scene.json")
     if args.texture:
-        from va_plugin.export.texture import check_texture_size
-
         from va_plugin.eval.mesh_render import check_supersample
+        from va_plugin.export.texture import check_texture_size
 
         check_texture_size(args.texture_size)
         check_supersample(args.texture_supersample, "--texture-supersample")
