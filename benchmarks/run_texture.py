@@ -77,15 +77,37 @@ def timing_views(pipeline, count: int) -> Views:
     return Views(cameras, images.astype(np.float32))
 
 
+def benchmark_row(run: Path):
+    """The benchmark row that scored ``run``: ``RUN/bench_row.json`` when it holds the scores, else the line of
+    the results folder's ``rows.jsonl`` (run_backbone / run_table1 write it in a folder above the run) whose
+    ``run_dir`` is this run; None when neither does."""
+    marker = run / "bench_row.json"
+    if marker.is_file():
+        row = json.loads(marker.read_text())
+        if all(k in row for k in KEYS):
+            return row, marker
+    here = run.resolve()
+    for folder in list(here.parents)[:5]:
+        rows = folder / "rows.jsonl"
+        if rows.is_file():
+            for line in rows.read_text().splitlines():
+                row = json.loads(line) if line.strip() else {}
+                if row.get("run_dir") and Path(row["run_dir"]).resolve() == here and all(k in row for k in KEYS):
+                    return row, rows
+    return None
+
+
 def field_scores(pipeline, run: Path, max_views, reuse: bool) -> dict:
-    """The field's held-out scores: from ``RUN/bench_row.json`` (written by run_backbone / run_table1 after
-    scoring every held-out view) when ``reuse`` and every view is asked for, else rendered here."""
-    row_file = run / "bench_row.json"
-    if reuse and max_views is None and row_file.exists():
-        row = json.loads(row_file.read_text())
+    """The field's held-out scores: from the benchmark row that scored every held-out view of the run
+    (:func:`benchmark_row`) when ``reuse`` and every view is asked for, else rendered here."""
+    found = benchmark_row(run) if reuse and max_views is None else None
+    if found is not None:
+        row, source = found
         views = row.get("evaluation", {}).get("image_params", {}).get("views")
-        if views is not None and all(k in row for k in KEYS):
-            return {**{k: row[k] for k in KEYS}, "image_params": {"views": views}, "from": str(row_file)}
+        if views is not None:
+            return {**{k: row[k] for k in KEYS}, "image_params": {"views": views}, "from": str(source)}
+    if reuse and max_views is None:
+        print(f"{run}: no benchmark row with its scores found; rendering the field's held-out views", flush=True)
     return image_metrics(pipeline, max_views=max_views, progress=False)
 
 
@@ -177,7 +199,8 @@ def main(argv=None) -> int:
                         f"fusion with the field's colour as one more view of weight W) and {ANCHOR_BAKE}W (the same, "
                         "the views judged against the field's colour); robust and mean always")
     parser.add_argument("--reuse-field-scores", action="store_true",
-                        help="take the field's scores from RUN/bench_row.json (all held-out views, written by "
+                        help="take the field's scores from the benchmark row of the run (all held-out views: "
+                        "RUN/bench_row.json or the rows.jsonl of the results folder above it, written by "
                         "run_backbone) instead of rendering them again; needs no --max-views")
     parser.add_argument("--mesh", choices=("extracted", "truth"), default="extracted",
                         help="texture the run's own mesh (default) or the scene's ground-truth mesh: how much of "

@@ -69,6 +69,33 @@ def test_field_scores_can_come_from_the_benchmark_row(run, tmp_path):
     assert record["field"]["psnr"] != 1.5 and "field_from" not in record
 
 
+def test_field_scores_come_from_the_results_folders_rows_when_the_marker_holds_none(run, tmp_path, capsys):
+    """run_backbone's marker (RUN/bench_row.json) holds only the row's key; its scores are in the rows.jsonl
+    of the results folder above the run, found by the row's run_dir. Without either the field is rendered,
+    and the script says so."""
+    import shutil
+
+    script = load_script("run_texture")
+    results = tmp_path / "results"
+    copy = results / "runs" / "scene" / "neus"
+    shutil.copytree(run, copy)
+    (copy / "bench_row.json").write_text(json.dumps({"key": "scene/neus", "fingerprint": "abc"}))
+    other = {"run_dir": str(tmp_path / "elsewhere"), "psnr": 9.0, "ssim": 0.5, "lpips": 0.5,
+             "evaluation": {"image_params": {"views": 3}}}
+    mine = {**other, "run_dir": str(copy), "psnr": 1.5, "ssim": 0.25, "lpips": 0.75}
+    (results / "rows.jsonl").write_text(json.dumps(other) + "\n" + json.dumps(mine) + "\n")
+    base = ["--runs", str(copy), "--texture-size", "32", "--timing-views", "0", "--reuse-field-scores"]
+    assert script.main(base + ["--out", str(tmp_path / "a.jsonl")]) == 0
+    record = json.loads((tmp_path / "a.jsonl").read_text())
+    assert record["field"] == {"psnr": 1.5, "ssim": 0.25, "lpips": 0.75} and record["views"] == 3
+    assert record["field_from"] == str(results / "rows.jsonl")
+    (results / "rows.jsonl").write_text(json.dumps(other) + "\n")
+    capsys.readouterr()
+    assert script.main(base + ["--out", str(tmp_path / "b.jsonl"), "--mesh-resolution", "24"]) == 0
+    assert "no benchmark row with its scores found" in capsys.readouterr().out
+    assert "field_from" not in json.loads((tmp_path / "b.jsonl").read_text())
+
+
 def test_the_ground_truth_mesh_or_a_finer_grid_can_be_textured(run, tmp_path):
     """--mesh truth textures the scene's ground-truth mesh (how much of the score is the geometry's);
     --mesh-resolution sets the extracted mesh's grid; a resolution out of range is one line, exit 2."""
