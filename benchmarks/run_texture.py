@@ -23,6 +23,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from va_plugin.bench.store import ROWS_FILE, ResultStore
 from va_plugin.cli.common import friendly_errors
 from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
@@ -88,12 +89,10 @@ def benchmark_row(run: Path):
             return row, marker
     here = run.resolve()
     for folder in list(here.parents)[:5]:
-        rows = folder / "rows.jsonl"
-        if rows.is_file():
-            for line in rows.read_text().splitlines():
-                row = json.loads(line) if line.strip() else {}
+        if (folder / ROWS_FILE).is_file():
+            for row in ResultStore(folder, resume=True).rows.values():
                 if row.get("run_dir") and Path(row["run_dir"]).resolve() == here and all(k in row for k in KEYS):
-                    return row, rows
+                    return row, folder / ROWS_FILE
     return None
 
 

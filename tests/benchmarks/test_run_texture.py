@@ -80,9 +80,9 @@ def test_field_scores_come_from_the_results_folders_rows_when_the_marker_holds_n
     copy = results / "runs" / "scene" / "neus"
     shutil.copytree(run, copy)
     (copy / "bench_row.json").write_text(json.dumps({"key": "scene/neus", "fingerprint": "abc"}))
-    other = {"run_dir": str(tmp_path / "elsewhere"), "psnr": 9.0, "ssim": 0.5, "lpips": 0.5,
+    other = {"key": "other/neus", "run_dir": str(tmp_path / "elsewhere"), "psnr": 9.0, "ssim": 0.5, "lpips": 0.5,
              "evaluation": {"image_params": {"views": 3}}}
-    mine = {**other, "run_dir": str(copy), "psnr": 1.5, "ssim": 0.25, "lpips": 0.75}
+    mine = {**other, "key": "scene/neus", "run_dir": str(copy), "psnr": 1.5, "ssim": 0.25, "lpips": 0.75}
     (results / "rows.jsonl").write_text(json.dumps(other) + "\n" + json.dumps(mine) + "\n")
     base = ["--runs", str(copy), "--texture-size", "32", "--timing-views", "0", "--reuse-field-scores"]
     assert script.main(base + ["--out", str(tmp_path / "a.jsonl")]) == 0
