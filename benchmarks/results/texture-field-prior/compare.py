@@ -6,15 +6,24 @@ Columns: the field's renders, robust fusion, the plain mean, and every other bak
 robust-field=W, robust-anchor=W), in their order; then the means and, per bake, on how many objects it
 beats the field and robust fusion.
 """
-import json, sys, numpy as np
-first = json.loads(open(sys.argv[1]).readline())
+import sys
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from texture_lines import load, object_name  # noqa: E402
+
+if len(sys.argv) < 2:
+    sys.exit("usage: python compare.py FILE.jsonl [FILE.jsonl ...]")
+first = load(sys.argv[1])[0]
 keys = ['field'] + [k for k, v in first.items() if isinstance(v, dict) and 'lpips' in v and k != 'field']
 rows = []
 print('| object | ' + ' | '.join(keys) + ' |')
 print('|---' * (len(keys) + 1) + '|')
 for f in sys.argv[1:]:
-    for l in open(f):
-        r = json.loads(l); n = r['run'].split('/')[4].split('-')[1]
+    for r in load(f):
+        n = object_name(r['run'])
         rows.append([r[k]['lpips'] for k in keys] + [r[k]['psnr'] for k in keys])
         print(f'| {n} | ' + ' | '.join(f"{r[k]['psnr']:.2f} / {r[k]['lpips']:.4f}" for k in keys) + ' |')
 a = np.array(rows); m = a.mean(0); K = len(keys)

@@ -8,33 +8,24 @@ FIELD_2X2.jsonl: the field's held-out renders averaged over 2x2 rays a pixel, on
 the textured mesh with robust fusion at one ray a pixel and at 2x2, the plain mean at one ray a pixel, and
 the field at 2x2 where given; then the means and counts over the objects that have both textured settings.
 """
-import json
-import re
 import sys
 from pathlib import Path
 
 import numpy as np
 
+sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+from texture_lines import load, object_name as name  # noqa: E402
+
 USAGE = "usage: python table.py TEXTURE.jsonl [FIELD_2X2.jsonl]"
 if len(sys.argv) not in (2, 3) or not all(Path(p).is_file() for p in sys.argv[1:]):
     sys.exit(USAGE)
-
-
-def name(run: str) -> str:
-    found = re.search(r"gso-([a-z]+)-l\d", run)
-    return found.group(1) if found else run
-
-
-lines = [json.loads(x) for x in Path(sys.argv[1]).read_text().splitlines() if x.strip()]
 by = {}
-for r in lines:
+for r in load(sys.argv[1]):
     by.setdefault(name(r["run"]), {})[r.get("supersample", 2)] = r
 field2 = {}
 if len(sys.argv) == 3:
-    for x in Path(sys.argv[2]).read_text().splitlines():
-        if x.strip():
-            r = json.loads(x)
-            field2[name(r["run"])] = r["ss"]
+    for r in load(sys.argv[2]):
+        field2[name(r["run"])] = r["ss"]
 objects = sorted(n for n, s in by.items() if 1 in s and 2 in s)
 if not objects:
     sys.exit(f"{sys.argv[1]} holds no run scored at both --supersample 1 and 2")
