@@ -97,3 +97,10 @@ def test_eval_refuses_a_bad_number_of_rays_a_pixel(run, tmp_path, value, capsys)
                           "--output", str(tmp_path / "eval.json"), "--no-progress"])
     one_line_error(capsys, code, "--texture-supersample must be a whole number")
     assert list(tmp_path.iterdir()) == []
+
+
+def test_eval_default_rays_a_pixel_is_the_scoring_default():
+    # va-eval imports the texture code lazily, so its --texture-supersample default is written out; it must stay
+    # the package's scoring default (one ray through each pixel centre, as the field's renders)
+    from va_plugin.eval.mesh_render import SCORE_SUPERSAMPLE
+    assert eval_cli.build_parser().parse_args(["--load-dir", "x"]).texture_supersample == SCORE_SUPERSAMPLE
