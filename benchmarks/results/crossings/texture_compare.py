@@ -19,6 +19,8 @@ from texture_lines import by_object  # noqa: E402
 if len(sys.argv) not in (2, 3):
     sys.exit("usage: python texture_compare.py TEXTURE.jsonl [BASE_TEXTURE.jsonl]")
 new = by_object(sys.argv[1])
+if not new:
+    sys.exit(f"{sys.argv[1]} holds no run_texture.py line")
 if len(sys.argv) == 3 and sys.argv[2] == "-":
     print("| object | field | textured, robust | plain mean (LPIPS) | robust - mean |")
     print("|---|---|---|---|---|")

@@ -16,7 +16,10 @@ from texture_lines import load, object_name  # noqa: E402
 
 if len(sys.argv) < 2:
     sys.exit("usage: python compare.py FILE.jsonl [FILE.jsonl ...]")
-first = load(sys.argv[1])[0]
+lines = load(sys.argv[1])
+if not lines:
+    sys.exit(f"{sys.argv[1]} holds no run_texture.py line")
+first = lines[0]
 keys = ['field'] + [k for k, v in first.items() if isinstance(v, dict) and 'lpips' in v and k != 'field']
 rows = []
 print('| object | ' + ' | '.join(keys) + ' |')
