@@ -4,11 +4,12 @@ crossings/texture_compare.py, texture-sampling/table.py and texture-field-prior/
 
 The scripts run as ``python benchmarks/results/X/script.py``; they put this folder on ``sys.path`` first.
 """
-import json
 import re
 import sys
 from pathlib import Path
 from typing import Dict, List, Optional
+
+from va_plugin.bench.store import read_json_lines
 
 
 def object_name(run: str) -> str:
@@ -19,19 +20,13 @@ def object_name(run: str) -> str:
 
 
 def load(path: str) -> List[dict]:
-    """Every record of a run_texture.py output file; exits with one line when the file is missing or a line
-    is not JSON (a line cut short by a crash is skipped, as the package's result store does)."""
-    file = Path(path)
-    if not file.is_file():
+    """Every record of a run_texture.py output file; exits with one line when the file is missing. A line that
+    is not whole JSON (cut short by a crash) is skipped, and how many were is said on stderr."""
+    if not Path(path).is_file():
         sys.exit(f"{path}: no such file")
-    records = []
-    for number, line in enumerate(file.read_text().splitlines(), 1):
-        if not line.strip():
-            continue
-        try:
-            records.append(json.loads(line))
-        except json.JSONDecodeError:
-            print(f"{path}:{number}: not a whole JSON line, skipped", file=sys.stderr)
+    records, skipped = read_json_lines(Path(path))
+    if skipped:
+        print(f"{path}: {skipped} line(s) not whole JSON, skipped", file=sys.stderr)
     return records
 
 

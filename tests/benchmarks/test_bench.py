@@ -253,3 +253,14 @@ def test_every_script_writes_its_report(name, scripts, tiny_scene, tmp_path, mon
     assert len((out / f"{name}.csv").read_text().splitlines()) == len(data["rows"]) + 1
     assert "## Per scene" in (out / f"{name}.md").read_text()
     assert any(p.suffix == ".png" and p.stat().st_size > 1000 for p in out.iterdir())
+
+
+def test_result_store_skips_a_line_cut_short_by_a_crash(tmp_path):
+    from va_plugin.bench.store import read_json_lines
+
+    rows = tmp_path / "rows.jsonl"
+    rows.write_text(json.dumps({"key": "a", "psnr": 20.0}) + "\n\n" + json.dumps({"key": "b", "psnr": 21.0})
+                    + "\n" + '{"key": "c", "ps')
+    records, skipped = read_json_lines(rows)
+    assert [r["key"] for r in records] == ["a", "b"] and skipped == 1  # the blank line is not counted
+    assert sorted(ResultStore(tmp_path, resume=True).rows) == ["a", "b"]

@@ -11,11 +11,26 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional
+from typing import Any, Callable, Dict, List, Optional, Tuple
 
 from va_plugin.errors import ConfigError
 
 ROWS_FILE = "rows.jsonl"
+
+
+def read_json_lines(path: Path) -> Tuple[List[Any], int]:
+    """Every whole JSON line of ``path`` in order, and how many lines were skipped as not whole JSON (a line
+    cut short by a crash); blank lines are neither."""
+    records: List[Any] = []
+    skipped = 0
+    for line in Path(path).read_text().splitlines():
+        if not line.strip():
+            continue
+        try:
+            records.append(json.loads(line))
+        except json.JSONDecodeError:
+            skipped += 1
+    return records, skipped
 
 
 def _finite_or_none(value: Any) -> Any:
@@ -43,11 +58,7 @@ class ResultStore:
             if not resume:
                 raise ConfigError(f"{out} already holds benchmark rows ({ROWS_FILE}); pass --resume to skip "
                                   "the finished ones, or choose another --out")
-            for line in self.path.read_text().splitlines():
-                try:
-                    row = json.loads(line)
-                except json.JSONDecodeError:
-                    continue  # a line cut short by a crash
+            for row in read_json_lines(self.path)[0]:
                 if isinstance(row, dict) and "key" in row:
                     self.rows[row["key"]] = _nan_for_none(row)
 
