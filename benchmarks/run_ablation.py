@@ -3,12 +3,8 @@
 Rows, each adding one component to the one before (the view-adaptive field's switches, all under
 ``pipeline.model.field.``): Baseline (the original method); + view-adaptive branches (``fusion=false``,
 ``entropy_weight=0``, ``consistency_weight=0``); + self-attention fusion; + entropy regularization; +
-consistency loss (the full model). For the neus backbone, also the pieces of issue 21 each against the
-baseline: camera refinement, per-view deformation, trimmed losses, per-view uncertainty of the colour loss
-(per cell of a 4x4 split), the full model with the first two,
-and the full model whose branch colours do not reshape the shared field (``PIECES``). Every adaptive row
-forces the adaptive phases (``skip_consistent_scenes=false``), so no row silently falls back to the
-baseline. Writes into OUT:
+consistency loss (the full model). Every adaptive row forces the adaptive phases
+(``skip_consistent_scenes=false``), so no row silently falls back to the baseline. Writes into OUT:
 ablation.md (Table 4 with step-by-step changes beside the paper's), ablation.csv/json, ablation_time.png,
 rows.jsonl, scenes/, runs/.
 
@@ -39,22 +35,6 @@ STEPS = [
 ]
 """(row label, overrides of the view-adaptive method; None: the original method)."""
 
-MODEL = "pipeline.model."
-PIECES = [
-    ("Baseline + camera refinement", False, (MODEL + "camera_opt.mode=SO3",)),
-    ("Baseline + per-view deformation", False, (MODEL + "view_deformation.enabled=true",)),
-    ("Baseline + trimmed losses", False, (MODEL + "trim_fraction=0.1",)),
-    ("Baseline + per-view uncertainty (4x4 cells)", False,
-     (MODEL + "view_uncertainty=1", MODEL + "view_uncertainty_grid=4")),
-    ("Full model + camera refinement + deformation", True,
-     (MODEL + "camera_opt.mode=SO3", MODEL + "view_deformation.enabled=true")),
-    ("Full model, branch colours cut from the shared field", True,
-     (FIELD + "branch_colour_reaches_shared=false",)),
-]
-"""Geometry- and pose-aware pieces (issue 21), each against the baseline: (label, view-adaptive?, overrides).
-They are options of the ``neus`` model, so these rows exist for the neus backbone only."""
-PIECE_BACKBONES = ("neus",)
-
 PAPER_TABLE4 = [
     {"psnr": 19.76, "ssim": 0.790, "lpips": 0.153, "cd": 0.0168, "iou": 0.6268},
     {"psnr": 21.94, "ssim": 0.820, "lpips": 0.139, "cd": 0.0136, "iou": 0.6788},
@@ -76,21 +56,14 @@ def plan(preset, args, sources: List[str]) -> List[RowSpec]:
                                     variant=f"{title}: {label}",
                                     overrides=() if overrides is None
                                     else FORCE + adaptive_overrides(args) + overrides))
-            if backbone in PIECE_BACKBONES:
-                for label, adaptive, overrides in PIECES:
-                    rows.append(RowSpec("ablation", scene, backbone, adaptive=adaptive, variant=f"{title}: {label}",
-                                        overrides=(FORCE + adaptive_overrides(args) if adaptive else ()) + overrides))
     return rows
-
-
-PIECE_LABELS = tuple(label for label, _, _ in PIECES)
 
 
 def step_table(rows: List[Dict[str, Any]]) -> str:
     """Each row label against the one before it, paired by scene, with the paper's step beside it (NeuS)."""
     body = []
     for backbone, group in group_rows(rows, lambda r: r["backbone"]).items():
-        by_label = group_rows([r for r in group if not r["variant"].endswith(PIECE_LABELS)], lambda r: r["variant"])
+        by_label = group_rows(group, lambda r: r["variant"])
         labels = list(by_label)
         for i in range(1, len(labels)):
             previous = {r["scene"]: r for r in by_label[labels[i - 1]]}
@@ -103,26 +76,11 @@ def step_table(rows: List[Dict[str, Any]]) -> str:
     return markdown_table(["Step (against the row before)", *DELTA_TITLES.values()], body)
 
 
-def piece_table(rows: List[Dict[str, Any]]) -> str:
-    """Each geometry- or pose-aware piece against its backbone's baseline row, paired by scene."""
-    body = []
-    for backbone, group in group_rows(rows, lambda r: r["backbone"]).items():
-        title = BACKBONE_TITLES.get(backbone, backbone)
-        baseline = {r["scene"]: r for r in group if r["variant"] == f"{title}: Baseline"}
-        for label, members in group_rows([r for r in group if r["variant"].endswith(PIECE_LABELS)],
-                                         lambda r: r["variant"]).items():
-            pairs = [(baseline[r["scene"]], r) for r in members if r["scene"] in baseline]
-            body.append([label, *(delta_cell(m, pairs) for m in DELTA_TITLES)])
-    return markdown_table(["Piece (against the baseline)", *DELTA_TITLES.values()], body) if body else ""
-
-
 def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
-    pieces = piece_table(rows)
     sections = report_sections("Table 4: cumulative ablation", meta, rows, [
         "## Each step against the row before, paired by scene",
         "The paper's steps are from its Table 4 (NeuS, SyncDreamer inputs, GPU).",
-        step_table(rows), *(["## Geometry- and pose-aware pieces against the baseline, paired by scene", pieces]
-                            if pieces else [])], ("ablation_time.png", "CD and PSNR against training seconds"), True)
+        step_table(rows)], ("ablation_time.png", "CD and PSNR against training seconds"), True)
     return write_outputs(rows, out, "ablation", meta, sections, {"ablation_time.png": lambda path: plot_time_curves(
         rows, path, "Ablation: error against training time")})
 

@@ -29,35 +29,24 @@ from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
 from va_plugin.eval.evaluate import ground_truth_mesh_path, image_metrics, load_mesh
 from va_plugin.eval.mesh_render import SCORE_SUPERSAMPLE, check_supersample, textured_mesh_metrics
+from va_plugin.export.atlas import MAX_TEXTURE_FACES
 from va_plugin.export.mesh import extract_mesh
-from va_plugin.export.texture import (MAX_TEXTURE_FACES, Views, bake_picture, bake_texture, check_texture_size,
-                                      field_fallback, run_views)
+from va_plugin.export.texture import bake_texture, check_texture_size, field_fallback, run_views
+from va_plugin.export.views import Views
+from va_plugin.export.writing import bake_picture
 
 KEYS = ("psnr", "ssim", "lpips")
 BAKES = {"robust": dict(fusion="robust"),  # with the per-view colour harmonisation (the default)
          "mean": dict(fusion="mean"),  # the plain angle-weighted average
          "robust-plain": dict(fusion="robust", harmonise_views=False),
          "mean-harmonised": dict(fusion="mean", harmonise_views=True)}
-FIELD_BAKE = "robust-field="
-"""``robust-field=W``: robust fusion with the field's colour as one more view of weight W everywhere."""
-ANCHOR_BAKE = "robust-anchor="
-"""``robust-anchor=W``: the same, with the views first judged against the field's colour (not their medoid)."""
 
 
 def bake_options(name: str) -> dict:
     """bake_texture's options of a ``--bakes`` entry (ConfigError for an unknown one)."""
     if name in BAKES:
         return BAKES[name]
-    for prefix in (FIELD_BAKE, ANCHOR_BAKE):
-        if name.startswith(prefix):
-            try:
-                weight = float(name[len(prefix):])
-            except ValueError:
-                weight = -1.0
-            if np.isfinite(weight) and weight > 0:
-                return dict(fusion="robust", field_weight=weight, field_anchor=prefix == ANCHOR_BAKE)
-    raise ConfigError(f"--bakes: unknown {name!r}; known: {', '.join(BAKES)}, {FIELD_BAKE}W, "
-                      f"{ANCHOR_BAKE}W (W > 0)")
+    raise ConfigError(f"--bakes: unknown {name!r}; known: {', '.join(BAKES)}")
 
 
 def timing_views(pipeline, count: int) -> Views:
@@ -194,9 +183,7 @@ def main(argv=None) -> int:
                         help="on the first run, also time a bake from this many views (0: no)")
     parser.add_argument("--threads", type=int, default=1, help="torch threads")
     parser.add_argument("--bakes", default="robust,mean",
-                        help=f"comma-separated bakes to score, from {', '.join(BAKES)}, {FIELD_BAKE}W (robust "
-                        f"fusion with the field's colour as one more view of weight W) and {ANCHOR_BAKE}W (the same, "
-                        "the views judged against the field's colour); robust and mean always")
+                        help=f"comma-separated bakes to score, from {', '.join(BAKES)}; robust and mean always")
     parser.add_argument("--reuse-field-scores", action="store_true",
                         help="take the field's scores from the benchmark row of the run (all held-out views: "
                         "RUN/bench_row.json or the rows.jsonl of the results folder above it, written by "

@@ -18,21 +18,14 @@ def ngp_config() -> TrainerConfig:
         pipeline=PipelineConfig(
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
             # view-independent colour and levels opening coarse to fine: with 4 views a colour that sees
-            # the direction fits each view with colours that are wrong in between (benchmarks/RESULTS.md,
-            # "ngp with few views")
+            # the direction fits each view with colours that are wrong in between
             model=NGPModelConfig(field=DensityFieldConfig(direction_frequencies=-1, coarse_to_fine_fraction=0.3),
                                  n_samples=96),
         ),
-        optimizers={"fields": OptimizerConfig(lr=1e-2),
-                    # used only when pipeline.model.view_appearance / view_warp / view_blur are switched on
-                    "view_appearance": OptimizerConfig(lr=1e-3), "view_warp": OptimizerConfig(lr=1e-3),
-                    "view_blur": OptimizerConfig(lr=1e-2)},
+        optimizers={"fields": OptimizerConfig(lr=1e-2)},
         scheduler=SchedulerConfig(warmup_steps=50, final_fraction=0.05),
         max_steps=1000,
-        # the schedules end at 1000 steps whatever the budget (2026-11-27): a longer run continues this one at
-        # the final learning rate. On GSO-10 at level 2, stretched, 4x the budget grew the mesh's CD by 4.7%
-        # (above +3% on 7/10 objects); continued, 2x and 4x stay within 0.2 dB and +3% CD on 10/10
-        # (benchmarks/RESULTS.md, "`ngp` with schedules that end at its default budget")
+        # the schedules end at 1000 steps whatever the budget: a longer run continues at the final values
         schedule_steps=1000,
     )
 

@@ -1,15 +1,12 @@
 """The ``va-neus`` method: NeuS with the paper's view-adaptive renderer wrapped around its field.
 
 The branches and the attention are sized to the hash-grid field's 64-wide colour feature f_shared
-(2 layers x 64, attention width 64) instead of the paper's 3 x 128 (sized to its 4 x 256 network): on
-the hash backbone the paper's size made a phase-2 step 1.7x a backbone step (benchmarks/RESULTS.md,
-"Branches sized to the hash backbone").
+(2 layers x 64, attention width 64) instead of the paper's 3 x 128 (sized to its 4 x 256 network),
+which on the hash backbone made a phase-2 step much dearer than a backbone step.
 
-Since 2026-11-26 the shared path's render of the training rays meets the inputs too in phases 2-3
-(``shared_colour_weight=1``): on all six real generator outputs the shared path (what the mesh and
-novel views come from) then fits the training views 0.27-1.06 dB better than `neus`'s, where without it
-it was below on 5/6; a tie on GSO-10 level 2 (benchmarks/RESULTS.md, "The shared-path colour loss on
-every real output"). `va-ngp` keeps the field's default (0: the paper's loss; not measured there)."""
+In phases 2-3 the shared path's render of the training rays meets the inputs too
+(``shared_colour_weight=1``), so that the shared path, which the mesh and novel views come from, keeps
+fitting the training views. `va-ngp` keeps the field's default (0: the paper's loss)."""
 
 from __future__ import annotations
 

@@ -39,7 +39,7 @@ def tiny_config(method: str, scene: Path, out: Path, steps: int = 2, **overrides
     config.device = "cpu"
     shrink = {"pipeline.datamanager.rays_per_batch": 32}
     model = config.pipeline.model
-    for name, value in (("n_samples", 8), ("n_importance", 8), ("eval_chunk", 256), ("projected_area_rays", 8),
+    for name, value in (("n_samples", 8), ("n_importance", 8), ("eval_chunk", 256), ("crossings_rays", 8),
                         ("crossings_samples", 16)):
         if hasattr(model, name):
             shrink[f"pipeline.model.{name}"] = value
@@ -71,3 +71,46 @@ def tiny_trained_run(tmp_path_factory, resolution: int = 32, steps: int = 2, wit
 def no_env_methods(monkeypatch):
     monkeypatch.delenv("VA_PLUGIN_METHODS", raising=False)
     return os.environ
+
+
+# -- a small object on the generators' rigs ------------------------------------------------------------
+def toy_object():
+    """A box with a ball on one corner (no mirror symmetry about the vertical planes), inside the unit box."""
+    import trimesh
+
+    box = trimesh.creation.box(extents=(0.6, 0.4, 0.5))
+    ball = trimesh.creation.icosphere(subdivisions=2, radius=0.18)
+    ball.apply_translation((0.25, 0.2, 0.2))
+    return trimesh.util.concatenate([box, ball])
+
+
+def toy_albedo(points):
+    """Saturated colours far from white and gray, so a colour key separates them cleanly."""
+    import numpy as np
+
+    return np.stack([0.6 + 0.3 * np.sign(points[:, 0]), 0.15 + 0.3 * (points[:, 2] > 0), np.full(len(points), 0.1)], -1)
+
+
+def render_views(renderer, cameras, background):
+    """RGB views composited on ``background`` and their alpha ``[n, t, t]``."""
+    import numpy as np
+
+    rgba = np.stack([renderer.render(cameras, k) for k in range(len(cameras))])
+    rgb = rgba[..., :3] * rgba[..., 3:] + np.asarray(background, np.float32) * (1 - rgba[..., 3:])
+    return rgb, rgba[..., 3]
+
+
+def write_syncdreamer_strip(path: Path, tile: int = 32, alpha: bool = False) -> Path:
+    """The toy object on SyncDreamer's rig, written as its output strip (on white; RGBA with ``alpha``)."""
+    import numpy as np
+
+    from va_plugin.data import rigs
+    from va_plugin.data.images import write_image
+    from va_plugin.data.scenes.raycast import MeshRenderer, position_albedo
+
+    renderer = MeshRenderer(toy_object(), position_albedo(toy_albedo))
+    rgb, a = render_views(renderer, rigs.syncdreamer_rig(tile, pixel_offset=0.5), (1.0, 1.0, 1.0))
+    image = np.concatenate(list(np.concatenate([rgb, a[..., None]], -1) if alpha else rgb), axis=1)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    write_image(path, image)
+    return path

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import ast
 import dataclasses
+import difflib
 import functools
 import inspect
 import json
@@ -119,16 +120,16 @@ _POSITIVE = frozenset({
     "checkpoint_every", "color_width", "density_threshold", "eval_chunk", "features_per_level",
     "finite_difference_cells", "hidden_width", "image_scale", "init_radius", "keep_checkpoints",
     "log_every", "max_resolution", "max_skips_in_a_row", "max_steps", "n_levels", "n_samples",
-    "rays_per_batch", "render_sharpness", "resolution", "scene_radius", "sdf_width", "skip_margin",
-    "smoothness_points", "smoothness_radius", "snapshot_every", "softplus_beta", "update_every"})
+    "rays_per_batch", "resolution", "scene_radius", "sdf_width", "skip_margin",
+    "snapshot_every", "softplus_beta", "update_every"})
 _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
-    "color_grid_levels", "color_layers", "consistent_colour_cast", "consistent_residual_db", "diagnostics_scale",
+    "color_layers", "consistent_colour_cast", "diagnostics_scale",
     "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",
     "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "mesh_smoothing", "min_sample_weight",
     "n_importance", "num_threads", "schedule_steps", "sdf_layers", "shared_colour_weight", "shared_lr_scale",
     "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels", "threshold", "up_sample_steps",
-    "warmup_steps", "weight_decay"})
-_UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "regularizers_shared_scale", "train_until"})
+    "warmup_steps", "weight_decay", "min_foreground_opacity", "final_check_after"})
+_UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "train_until"})
 
 
 def check_range(name: str, value: Any, path: str) -> None:
@@ -159,16 +160,33 @@ def apply_override(config: Any, assignment: str) -> None:
             target = target[part]
             continue
         if isinstance(target, dict) or not hasattr(target, part):
-            known = f"; known: {', '.join(map(str, target))}" if isinstance(target, dict) else ""
-            raise ConfigError(f"unknown option {'.'.join(parts[: depth + 1])!r} in {assignment!r}{known}")
+            raise ConfigError(f"unknown option {'.'.join(parts[: depth + 1])!r} in {assignment!r}"
+                              f"{_nearest_keys(config, path.strip())}")
         target = getattr(target, part)
     last = parts[-1]
     if not is_dataclass(target) or last not in {f.name for f in fields(target)}:
-        known = ", ".join(f.name for f in fields(target)) if is_dataclass(target) else ""
-        raise ConfigError(f"unknown option {path!r}; options here are: {known}")
+        raise ConfigError(f"unknown option {path!r}{_nearest_keys(config, path.strip())}")
     value = _convert(text, getattr(target, last), path)
     check_range(last, value, path)
     setattr(target, last, value)
+
+
+def _nearest_keys(config: Any, key: str) -> str:
+    """``"; did you mean a.b.c?"`` with the closest ``--set`` keys of ``config`` to a mistyped ``key`` (by the
+    whole key, then by its last part), or a pointer to the list when nothing is close."""
+    if not is_dataclass(config):
+        return ""
+    keys = [row[0] for row in describe_options(config)]
+    close = difflib.get_close_matches(key, keys, n=3, cutoff=0.6)
+    if not close:
+        by_name = {}
+        for k in keys:
+            by_name.setdefault(k.rsplit(".", 1)[-1], []).append(k)
+        names = difflib.get_close_matches(key.rsplit(".", 1)[-1], list(by_name), n=3, cutoff=0.6)
+        close = [k for name in names for k in by_name[name]][:3]
+    if close:
+        return "; did you mean " + " or ".join(close) + "?"
+    return "; --help-config lists every key"
 
 
 def replace(config: Any, **changes: Any) -> Any:

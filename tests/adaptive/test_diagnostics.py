@@ -56,13 +56,12 @@ def test_diagnostics_of_a_plain_run_is_a_clear_error(tiny_scene, tmp_path, capsy
     assert "not view-adaptive" in capsys.readouterr().err
 
 
-@pytest.mark.parametrize("method,phase_fractions,canonical", [
-    ("va-neus", (0.0, 0.0), "mean"),    # fusion
-    ("va-ngp", (0.0, 0.0), "mean"),
-    ("va-neus", (0.0, 1.0), "mean"),    # branches alone
-    ("va-neus", (0.0, 0.0), "shared"),
+@pytest.mark.parametrize("method,phase_fractions", [
+    ("va-neus", (0.0, 0.0)),    # fusion
+    ("va-ngp", (0.0, 0.0)),
+    ("va-neus", (0.0, 1.0)),    # branches alone
 ])
-def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, canonical, tiny_scene, tmp_path):
+def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, tiny_scene, tmp_path):
     """The maps render each view once (own and canonical colour from the same samples); that must be
     exactly what two separate renders, own path and novel-view path, give."""
     import torch
@@ -73,9 +72,7 @@ def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, canon
     trainer = tiny_config(method, tiny_scene, tmp_path / "run", steps=2, **{
         "pipeline.model.field.skip_consistent_scenes": "false", "pipeline.model.field.diagnostics_scale": 0,
         "pipeline.model.field.pretrain_fraction": phase_fractions[0],
-        "pipeline.model.field.branch_fraction": phase_fractions[1],
-        "pipeline.model.field.canonical": canonical,
-        "pipeline.model.field.fused_samples_per_ray": 0 if canonical == "mean" else 1}).setup()
+        "pipeline.model.field.branch_fraction": phase_fractions[1]}).setup()
     trainer.train()
     field = trainer.model.field
     with torch.no_grad():  # make the branches and the attention matter

@@ -56,7 +56,7 @@ def test_report_has_level_tables_and_budget_check(smoke_out):
     (["--variants", "neus:nope"], "has no preset"),
     (["--budgets", "0"], "positive"),
     (["--kinds", "appearance;colour"], "unknown inconsistency kind"),
-    (["--variants", "neus@smoothness_weight"], "KEY=VALUE"),
+    (["--variants", "neus@crossings_weight"], "KEY=VALUE"),
 ])
 def test_bad_flags(backbone, tmp_path, flags, message, capsys):
     assert backbone.main(["--preset", "smoke", "--out", str(tmp_path / "o"), *flags]) == 2
@@ -64,9 +64,9 @@ def test_bad_flags(backbone, tmp_path, flags, message, capsys):
 
 
 def test_variant_overrides_reach_their_row_only(backbone):
-    variants = backbone.parse_variants("neus,neus:fast@pipeline.model.smoothness_weight=0.1@max_steps=7")
+    variants = backbone.parse_variants("neus,neus:fast@pipeline.model.crossings_weight=0.1@max_steps=7")
     assert variants == [("neus", "", ()),
-                        ("neus", "fast", ("pipeline.model.smoothness_weight=0.1", "max_steps=7"))]
+                        ("neus", "fast", ("pipeline.model.crossings_weight=0.1", "max_steps=7"))]
 
 
 def test_kind_sets_become_scenes_of_their_own(backbone, tmp_path):

@@ -193,3 +193,31 @@ def test_negative_schedule_steps_is_refused(tiny_scene, tmp_path):
     config.schedule_steps = -5
     with pytest.raises(ConfigError, match="schedule_steps"):
         config.setup()
+
+
+def test_checkpoint_of_an_earlier_version_loads_without_its_removed_options(tiny_scene, tmp_path, monkeypatch):
+    """A run whose config held an option class that has since left the package still loads (the class reads
+    back as RemovedOption); a missing class outside the package is still an error."""
+    import sys
+    import types
+    from dataclasses import dataclass
+
+    from va_plugin.cli.run import load_run
+    from va_plugin.engine.trainer import RemovedOption, load_checkpoint
+
+    @dataclass
+    class GoneOptionConfig:
+        strength: float = 0.0
+
+    module = types.ModuleType("va_plugin.gone_option")
+    GoneOptionConfig.__module__, GoneOptionConfig.__qualname__ = module.__name__, "GoneOptionConfig"
+    module.GoneOptionConfig = GoneOptionConfig
+    monkeypatch.setitem(sys.modules, module.__name__, module)
+    config = tiny_config("neus", tiny_scene, tmp_path / "run", steps=1)
+    config.pipeline.model.gone_option = GoneOptionConfig()
+    config.setup().train()
+    monkeypatch.delitem(sys.modules, module.__name__)
+    state = load_checkpoint(tmp_path / "run")
+    assert isinstance(state["config_object"].pipeline.model.gone_option, RemovedOption)
+    pipeline, _ = load_run(tmp_path / "run")
+    assert pipeline.model is not None

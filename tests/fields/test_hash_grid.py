@@ -205,18 +205,3 @@ def test_active_level_mask_zeroes_the_finest_levels():
     with pytest.raises(ValueError):
         encoding.set_active_levels(9)
 
-
-def test_level_mean_squares_by_hand():
-    encoding = HashGridEncoding(n_levels=2, n_features_per_level=2, log2_hashmap_size=4, base_resolution=1,
-                                max_resolution=2)
-    sizes = [encoding.offsets[1], encoding.table.shape[0] - encoding.offsets[1]]
-    with torch.no_grad():
-        encoding.table.zero_()
-        encoding.table[0] = torch.tensor([3.0, 4.0])  # level 0: one row of squares 9 + 16
-        encoding.table[encoding.offsets[1]] = torch.tensor([1.0, 0.0])
-    expected = torch.tensor([25.0 / (2 * sizes[0]), 1.0 / (2 * sizes[1])])
-    assert torch.allclose(encoding.level_mean_squares(), expected)
-    encoding.level_mean_squares().sum().backward()
-    # d/dv of mean(v^2) over a level's 2 * size values is v / size
-    assert torch.allclose(encoding.table.grad[0], torch.tensor([3.0, 4.0]) / sizes[0])
-    assert torch.allclose(encoding.table.grad[encoding.offsets[1]], torch.tensor([1.0, 0.0]) / sizes[1])

@@ -142,33 +142,8 @@ def test_colour_inputs_follow_the_config():
         assert torch.equal(rgb, other_dirs) == (freqs < 0)
 
 
-def test_a_colour_grid_feeds_the_colour_only_and_opens_with_the_geometry_grid():
-    """With color_grid_levels the colour MLP also reads a grid of its own: the SDF and its feature do not
-    depend on that grid, the colour does (and trains it), and its levels open in step with the geometry's."""
-    field = _small_field(color_grid_levels=2, coarse_to_fine_fraction=0.5, start_levels=2)
-    with torch.no_grad():
-        field.color_encoding.table.uniform_(-0.2, 0.2)
-    x = _points(16)
-    normals = torch.nn.functional.normalize(x, dim=-1)
-    field.update_step(0, 100)
-    assert field.encoding.n_active_levels == 2 and field.color_encoding.n_active_levels == 1
-    field.update_step(60, 100)
-    assert field.encoding.n_active_levels == 4 and field.color_encoding.n_active_levels == 2
-    sdf, feat = field.geometry(x)
-    rgb = field.color(x, normals, normals, feat)["rgb"]
-    rgb.sum().backward()
-    assert field.color_encoding.table.grad.abs().sum() > 0
-    with torch.no_grad():
-        field.color_encoding.table.zero_()
-    sdf2, feat2 = field.geometry(x)
-    assert torch.equal(sdf, sdf2) and torch.equal(feat, feat2)
-    assert not torch.allclose(field.color(x, normals, normals, feat)["rgb"], rgb)
-    assert HashSDFFieldConfig().setup().color_encoding is None
-
-
 @pytest.mark.parametrize("bad", [dict(sdf_gradient="exact"), dict(start_levels=20), dict(bound=0.0),
-                                 dict(coarse_to_fine_fraction=1.5), dict(direction_frequencies=-2),
-                                 dict(color_grid_levels=-1)])
+                                 dict(coarse_to_fine_fraction=1.5), dict(direction_frequencies=-2)])
 def test_bad_options_are_one_line_errors(bad):
     with pytest.raises(ConfigError):
         HashSDFFieldConfig(**bad).setup()

@@ -135,32 +135,3 @@ def test_mesh_export_after_brief_training(tiny_scene, tmp_path):
     model.config.density_threshold = float(density.median())
     mesh = extract_mesh(model, resolution=24)
     assert len(mesh.faces) > 0 and mesh.visual.vertex_colors.shape[0] == len(mesh.vertices)
-
-
-@pytest.mark.parametrize("method", ["ngp", "neus", "va-neus"])
-def test_grid_decay_adds_the_weighted_level_means_and_pulls_the_table_to_zero(method, tiny_scene, tmp_path):
-    overrides = SMALL if method == "ngp" else {}
-    torch.manual_seed(0)
-    trainer = tiny_config(method, tiny_scene, tmp_path / method, steps=2,
-                          **{**overrides, "pipeline.model.grid_decay_weight": 0.5}).setup()
-    model = trainer.pipeline.model
-    grids = model.hash_grids()
-    assert len(grids) >= 1
-    ray_bundle, batch = trainer.pipeline.datamanager.next_train(0)
-    loss = model.get_loss_dict(model.get_outputs(ray_bundle), batch)
-    expected = 0.5 * sum(float(g.level_mean_squares().detach().sum()) for g in grids)
-    assert loss["grid_decay"].item() == pytest.approx(expected, rel=1e-5)
-    # the term alone pulls the table towards zero
-    grids[0].table.grad = None
-    loss["grid_decay"].backward()
-    table = grids[0].table
-    assert float((table.grad * table.detach()).sum()) > 0
-
-
-def test_grid_decay_is_off_by_default_and_refuses_a_negative_weight(tiny_scene, tmp_path):
-    trainer = _trainer(tiny_scene, tmp_path)
-    model = trainer.pipeline.model
-    ray_bundle, batch = trainer.pipeline.datamanager.next_train(0)
-    assert "grid_decay" not in model.get_loss_dict(model.get_outputs(ray_bundle), batch)
-    with pytest.raises(ConfigError, match="grid_decay_weight"):
-        _trainer(tiny_scene, tmp_path, **{"pipeline.model.grid_decay_weight": -1.0})

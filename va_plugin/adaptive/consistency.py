@@ -5,17 +5,14 @@ lies inside every other view's silhouette: somewhere along the pixel's ray there
 the other masks contain. Generated views break this wherever their shape or pose drifts: the other
 silhouettes carve the pixel's ray empty. :func:`silhouette_support` counts, per view, the foreground
 pixels whose ray finds no such point (the "unsupported" fraction). It looks at the inputs alone, so a
-high-capacity field cannot fit the disagreement away before it is measured (the per-view residual test
-of :mod:`va_plugin.adaptive.phases` could not see it on real inputs), and it costs a fraction of a
-second.
+high-capacity field cannot fit the disagreement away before it is measured, and it is cheap.
 
 Every other mask can be dilated by ``tolerance_px`` pixels first (the masks are thresholded
-anti-aliased alpha and the projection is rounded to the nearest pixel). Measured on the 10 GSO objects
-(4 views at 256 px) and the real generator outputs of ../shared/data/generated: with a 1-pixel
-tolerance no level-2 object and no real output shows more than 0.2% unsupported, so the test is taken
-without tolerance; then clean renders (level 0) show at most 0.05%, level 2 up to 0.7% (0 on 3 of 10
-objects), level 3 up to 1.8%, real SyncDreamer outputs 0.8-1.6%, Zero123++ 0-0.4%
-(benchmarks/RESULTS.md, "Consistent-scene check").
+anti-aliased alpha and the projection is rounded to the nearest pixel); the test runs without
+tolerance, since even one pixel of it hides most of the disagreement the test is after.
+
+:func:`colour_cast` is the second test: per-view colour gains that make the views agree on the shared
+surface.
 """
 
 from __future__ import annotations
@@ -56,8 +53,8 @@ class SilhouetteSupport:
 
 
 DEFAULT_THRESHOLD = 0.001
-"""Share of a view's foreground that may be unsupported before the views count as disagreeing (twice the
-worst clean GSO render measured)."""
+"""Share of a view's foreground that may be unsupported before the views count as disagreeing (above
+what clean, consistent renders show)."""
 
 
 @torch.no_grad()
@@ -126,7 +123,7 @@ class ColourCast:
     def chroma(self) -> np.ndarray:
         """``[n, 3]``: per view, the log gain of each channel minus the view's mean log gain (a
         white-balance shift; a common brightness factor is left out, since the same surface seen from
-        another side is lit differently even in consistent renders: 3-4% on the clean GSO alarm)."""
+        another side is lit differently even in consistent renders)."""
         logs = self.log_gains
         return np.abs(logs - logs.mean(1, keepdims=True))
 
@@ -160,7 +157,7 @@ class ColourCast:
 def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: Optional[np.ndarray] = None,
                 resolution: int = 64, max_gain: float = float("inf")) -> ColourCast:
     """How far apart the views' colours are on the shared surface: the per-view gains of the texture
-    bake's harmonisation (:func:`va_plugin.export.texture.harmonise`, every fit kept), fitted on the
+    bake's harmonisation (:func:`va_plugin.export.fusion.harmonise`, every fit kept), fitted on the
     vertices of a ``resolution``^3 marching-cubes mesh of ``model`` projected into every view
     (``images [n, H, W, 3]`` composited, ``masks [n, H, W]`` bool or None). A colour cast is what a
     generator gets wrong that no silhouette shows; a field with a view-independent colour cannot fit
@@ -169,7 +166,8 @@ def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: Optional[np.
 
     from va_plugin.data.scenes.raycast import smooth_vertex_normals
     from va_plugin.export.mesh import extract_mesh
-    from va_plugin.export.texture import Views, harmonise, view_samples
+    from va_plugin.export.fusion import harmonise
+    from va_plugin.export.views import Views, view_samples
 
     started = time.perf_counter()
     mesh = extract_mesh(model, resolution=resolution, with_color=False)

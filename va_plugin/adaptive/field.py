@@ -6,10 +6,8 @@ wrapper sits between the halves:
     f_shared --(branch i)--> f_i --(self-attention over i = 1..n)--> f_fused,i --decode--> RGB
 
 A ray from training view i renders with f_fused,i. Novel views, evaluation and mesh colours render
-with the *canonical* feature: f_shared itself (``canonical="shared"``, the default: as cheap as the
-base field) or the mean over views of f_fused,i (``canonical="mean"``, DESIGN.md's first choice; see
-benchmarks/RESULTS.md for why it is no longer the default). Geometry is the base field's, shared by all
-views, so one surface exists to extract.
+with the *canonical* feature, f_shared itself (as cheap as the base field). Geometry is the base
+field's, shared by all views, so one surface exists to extract.
 
 The field knows nothing about training steps: it holds a phase flag (1 pre-training, 2 branches,
 3 fusion) that a trainer callback (``va_plugin.adaptive.phases``) sets.
@@ -18,7 +16,7 @@ The field knows nothing about training steps: it holds a phase flag (1 pre-train
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Tuple, Type
+from typing import Callable, Dict, List, Optional, Type
 
 import torch
 from torch import nn
@@ -31,7 +29,6 @@ from va_plugin.adaptive.phases import (BRANCHES, FUSION, PRETRAIN,
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import Field, FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
-from va_plugin.model_components.losses import scale_gradient
 
 ADAPTIVE_SEED_OFFSET = 7919
 """Added to the run's seed for the stream that initialises the branches and the attention."""
@@ -60,85 +57,32 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     """Width of the query/key/value projections, split over the heads."""
     attention_heads: int = 4
     """Attention heads H (the paper: 4)."""
-    canonical: str = "shared"
-    """Feature for novel views and mesh colours: "shared" (f_shared: as cheap as the base field) or "mean"
-    (mean over views of f_fused,i, which needs fused_samples_per_ray=0)."""
     pretrain_fraction: float = 1.0 / 3.0
     """Share of the step budget spent in phase 1, global pre-training (the paper: 100k of 300k)."""
     branch_fraction: float = 1.0 / 3.0
     """Share of the step budget in phase 2 (branches without fusion); phase 3 gets the rest."""
     shared_lr_scale: float = 1.0
-    """Learning-rate factor of the shared field in phases 2 and 3. The paper drops it to 1/10 after a
-    converged 100k-step pre-training; at our budgets phase 1 has not converged and 0.1 freezes an
-    unfinished field (measured, benchmarks/RESULTS.md: -0.3 to -1.0 dB held-out PSNR and +9% to +32% CD
-    against the backbone, where 1.0 ties it). 0.1 helps only past convergence (`ngp`, 3000 steps:
-    +0.22 dB), and there the drop alone, without branches, does as much."""
+    """Learning-rate factor of the shared field in phases 2 and 3 (the paper: 0.1, after a converged
+    pre-training; at short budgets 0.1 freezes an unfinished shared field)."""
     min_sample_weight: float = 1e-3
     """Samples whose rendering weight is at most this skip the branches and the attention and keep the
-    shared colour (0: every sample takes the adaptive path). Such a sample changes its pixel by at most
-    this fraction of the colour difference, and a ray's weights mostly sit on a few samples."""
-    regularizers_reach_shared: bool = False
-    """Let L_entropy and L_consistency (eq. 14) reshape the shared field too, as the paper's joint loss does.
-    Off: they train the branches and the attention only (the shared features enter them detached; one more
-    branch and attention pass on the fused samples). Measured on a real SyncDreamer output (aircraft_0):
-    at the start of phase 3 the branches' features differ by far more than their colours do, and the
-    consistency term's gradient on the shared field was 25x the colour loss's: within 20 steps the SDF
-    dissolved (inv_s 183 -> 1.4, training PSNR 25 -> 10; benchmarks/RESULTS.md)."""
-    regularizers_shared_scale: float = 1.0
-    """With ``regularizers_reach_shared``, the fraction of the regularizers' gradient that reaches the shared
-    field (1: the paper's joint loss; 0: the same as not reaching it). Between the two the values and the
-    gradients on the branches and the attention are the joint loss's, and the shared field gets that
-    fraction of its gradient (costs the same extra branch and attention pass as not reaching it)."""
+    shared colour (0: every sample takes the adaptive path)."""
     shared_colour_weight: float = 0.0
-    """Weight of a second colour loss, on the shared path's render of the same training rays (f_shared
-    decoded, composited with the same weights: what a novel view and the mesh colours use), while the
-    branches are active (phases 2-3). 0: the paper's loss, in which only the branch and fused colours meet
-    the inputs and f_shared is trained through them. The shared colours of the batch's samples are decoded
-    anyway, so it costs one more compositing of the batch (no change in the measured step time). At 1.0
-    on GSO-10 level 2: a tie with 0 (-0.03 dB, CD equal, LPIPS +0.005); on all six real generator outputs
-    the shared path fits the training views 0.27-1.06 dB better than `neus`'s, where at 0 it was below on
-    5/6; at level 3 it costs about 1.6% CD against 0 (x1.019 against `neus` where 0 has x1.003), at level 0
-    nothing measurable (benchmarks/RESULTS.md). `va-neus` sets 1.0; the field's default stays the paper's
-    loss."""
-    shared_colour_detach_weights: bool = False
-    """With ``shared_colour_weight``, composite the shared path's render with detached rendering weights, so
-    that its loss trains the shared colour (and the features it decodes) but not the opacities: the
-    opacities then meet the colour loss once, through the branch path, as in `neus`, instead of twice.
-    Measured on three real outputs: the shared path's fit at the training views falls back to `neus`'s
-    (-0.18 to +0.04 dB, where the undetached term gives +0.70 to +1.01), so what the term buys there goes
-    through the opacities; off (benchmarks/RESULTS.md, "The shared-path colour loss without the opacities")."""
-    branch_colour_reaches_shared: bool = True
-    """Let the branch (and fused) colours' photometric loss reshape the shared field in phases 2-3, as in
-    the paper. Off: that loss trains the branches, the attention and the colour decoder only (the shared
-    features enter the branch path detached, and the training render of those colours is composited with
-    detached rendering weights), so the shared geometry and the shared colour features learn from the
-    shared path's own colour loss (``shared_colour_weight``, which must then be > 0), the masks and the
-    backbone's priors, as the backbone does: the branches can no longer widen or bulge thin parts to
-    fit one view's colours."""
+    """Weight of a second colour loss in phases 2-3: the shared path's render of the same training rays
+    (what novel views and mesh colours use) against the inputs. 0: the paper's loss alone."""
     fused_samples_per_ray: int = 1
-    """While fusion trains, only the k heaviest visible samples of each training ray take the fused path
-    (every view's branch plus the attention); its other visible samples use their own view's branch,
-    the phase-2 path that fusion starts from (0: every visible sample is fused). Phase 3's cost grows
-    with n views x fused samples, and a ray's colour sits on a few samples near the surface. With k > 0
-    the attention and the consistency loss see only those samples, so canonical="mean" (which fuses
-    every sample) is refused for training."""
+    """While fusion trains, only the k heaviest visible samples of each training ray are fused; its other
+    visible samples take their own view's branch (0: every visible sample is fused)."""
     skip_consistent_scenes: bool = True
-    """After pre-training, test whether the inputs agree (silhouette support and colour cast; see
-    ``residual_test``); when they do, stay in phase 1 (the adaptive phases are skipped)."""
-    residual_test: bool = False
-    """Let the per-view residual test vote too: every view explained by the shared field to within
-    ``consistent_residual_db``. Off since 2026-11-25: at phase 1's end of the 2000-step default it called
-    8 of 10 clean GSO objects inconsistent (spreads 0.4-4.1 dB) and a level-2 one consistent; it is
-    still measured and recorded in view_residuals.json."""
-    consistent_residual_db: float = 1.0
-    """Threshold of the residual test: the largest per-view PSNR shortfall below the best view, in dB."""
+    """After pre-training, test whether the inputs agree (silhouette support and colour cast); when they
+    do, stay in phase 1 (the adaptive phases are skipped)."""
     consistent_colour_cast: float = 0.012
-    """Threshold of the colour-cast test of the same decision: the largest chromatic shift between a view
-    and view 0 on the shared surface, in colour units (``ColourCast.worst_shift`` of
-    :func:`va_plugin.adaptive.consistency.colour_cast`); 0 turns the test off."""
+    """Threshold of the colour-cast test: the largest chromatic shift between a view and view 0 on the
+    shared surface, in colour units (``ColourCast.worst_shift``); 0 turns the test off."""
     diagnostics_scale: float = 0.5
     """At the end of training, write the attention heat map and the per-view inconsistency maps to the
     run folder, rendered at this fraction of the input resolution (0: don't)."""
+
     def setup_for_scene(self, scene):
         """The wrapper for a scene: it needs the number of training views (one branch each)."""
         return self.setup(num_train_views=scene.num_train_views)
@@ -146,8 +90,6 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     def validate(self) -> None:
         if self.fusion and not self.branches:
             raise ConfigError("fusion needs the per-view branches (set branches=true or fusion=false)")
-        if self.canonical not in ("mean", "shared"):
-            raise ConfigError(f"canonical must be 'mean' or 'shared', got {self.canonical!r}")
         if not (0.0 <= self.pretrain_fraction and 0.0 <= self.branch_fraction
                 and self.pretrain_fraction + self.branch_fraction <= 1.0):
             raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
@@ -156,11 +98,6 @@ class ViewAdaptiveFieldConfig(FieldConfig):
                self.diagnostics_scale, self.fused_samples_per_ray, self.consistent_colour_cast) < 0:
             raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale, min_sample_weight, "
                               "diagnostics_scale, fused_samples_per_ray and consistent_colour_cast must be >= 0")
-        if not 0.0 <= self.regularizers_shared_scale <= 1.0:
-            raise ConfigError(f"regularizers_shared_scale must be in [0, 1], got {self.regularizers_shared_scale}")
-        if not self.branch_colour_reaches_shared and self.branches and self.shared_colour_weight <= 0:
-            raise ConfigError("branch_colour_reaches_shared=false needs shared_colour_weight > 0: without it "
-                              "nothing trains the shared field's colour while the branches are on")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:
@@ -221,16 +158,6 @@ class ViewAdaptiveField(Field):
     def current_phase(self) -> int:
         return self._phase
 
-    @property
-    def detached_weight_keys(self) -> Tuple[str, ...]:
-        """Colours the model composites with detached rendering weights: ``rgb_shared`` with
-        ``shared_colour_detach_weights``, and the training render of ``rgb`` (the branch colours) while
-        ``branch_colour_reaches_shared`` is off and the branches train."""
-        keys = ("rgb_shared",) if self.config.shared_colour_detach_weights else ()
-        if self.training and not self.config.branch_colour_reaches_shared and self.branches_active():
-            keys += ("rgb",)
-        return keys
-
     def branches_active(self) -> bool:
         return self.branches is not None and self.current_phase >= BRANCHES
 
@@ -263,7 +190,7 @@ class ViewAdaptiveField(Field):
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
               weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
         """RGB ``[..., 3]`` of samples; training rays (``camera_indices >= 0``) use their view's
-        f_fused,i, novel-view rays (-1) the canonical feature. While fusion trains, the per-sample
+        f_fused,i, novel-view rays (-1) the canonical feature f_shared. While fusion trains, the per-sample
         regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along, with the attention of
         the samples that went through it (``va_attention``, ``[A, n, n]``, and their rendering weights
         ``va_attention_weights`` ``[A]`` when known) for :meth:`extra_losses`.
@@ -284,7 +211,7 @@ class ViewAdaptiveField(Field):
         lead, d = shared.shape[:-1], shared.shape[-1]
         flat = shared.reshape(-1, d)
         views = flat_views(camera_indices, flat.shape[0], flat.device)
-        if mode.canonical_shared and bool((views < 0).all()):
+        if bool((views < 0).all()):
             return with_canonical({"rgb": self.base.decode_color(shared)}, mode)
         if weights is None or mode.min_sample_weight <= 0:
             out = self._every_sample(flat, views, mode)
@@ -302,18 +229,16 @@ class ViewAdaptiveField(Field):
         """The switches of this query, read once."""
         cfg = self.config
         return ColorMode(branches=self.branches_active(), fusion=self.fusion_active(), training=self.training,
-                         canonical_shared=cfg.canonical == "shared", also_canonical=self.also_canonical,
-                         min_sample_weight=cfg.min_sample_weight,
+                         also_canonical=self.also_canonical, min_sample_weight=cfg.min_sample_weight,
                          fused_samples_per_ray=cfg.fused_samples_per_ray if self.fusion_active() else 0,
-                         shared_colour=self.training and cfg.shared_colour_weight > 0,
-                         branch_detached=self.training and not cfg.branch_colour_reaches_shared)
+                         shared_colour=self.training and cfg.shared_colour_weight > 0)
 
     def _every_sample(self, flat: torch.Tensor, views: torch.Tensor, mode: "ColorMode") -> Dict[str, torch.Tensor]:
         """Every sample ``[S, D]`` takes the adaptive path (no rendering weights, or no culling)."""
-        out = self._adaptive(flat.detach() if mode.branch_detached else flat, views, None, mode)
-        if (mode.also_canonical and mode.canonical_shared) or mode.shared_colour:
+        out = self._adaptive(flat, views, None, mode)
+        if mode.also_canonical or mode.shared_colour:
             shared_rgb = self.base.decode_color(flat)
-            if mode.also_canonical and mode.canonical_shared:
+            if mode.also_canonical:
                 out["rgb_canonical"] = shared_rgb
             if mode.shared_colour:
                 out["rgb_shared"] = shared_rgb
@@ -324,20 +249,16 @@ class ViewAdaptiveField(Field):
         """The shared colour everywhere, overwritten where ``routes`` send a sample down the adaptive path
         (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``)."""
         index = routes.adaptive
-        source = flat.detach() if mode.branch_detached else flat  # what the branch path (``rgb``) sees
-        sub = self._adaptive(source[index], views[index], weights[index], mode)
+        sub = self._adaptive(flat[index], views[index], weights[index], mode)
         base_rgb = self.base.decode_color(flat)
-        rgb = self.base.decode_color(source) if mode.branch_detached else base_rgb
-        rgb = rgb.index_copy(0, index, sub.pop("rgb"))
+        rgb = base_rgb.index_copy(0, index, sub.pop("rgb"))
         if routes.own_only is not None:
             own = routes.own_only
-            rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(source[own], views[own])))
+            rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(flat[own], views[own])))
         out = {"rgb": rgb}
         if mode.shared_colour:
             out["rgb_shared"] = base_rgb
-        if "rgb_canonical" in sub:
-            out["rgb_canonical"] = base_rgb.index_copy(0, index, sub.pop("rgb_canonical"))
-        elif mode.also_canonical and mode.canonical_shared:
+        if mode.also_canonical:
             out["rgb_canonical"] = base_rgb  # the shared colour is the canonical one
         for key in ("va_attention", "va_attention_weights"):
             if key in sub:
@@ -354,7 +275,8 @@ class ViewAdaptiveField(Field):
         their rendering weights ``[S]`` (None: unknown): ``rgb [S, 3]``, and as :meth:`color` says."""
         novel = views < 0
         d = flat.shape[-1]
-        if not mode.fusion and not bool(novel.any()) and not mode.also_canonical:
+        cfg = self.config
+        if not mode.fusion and not bool(novel.any()):
             # branches alone: each sample needs only its own view's branch
             return {"rgb": self.base.decode_color(self.branches.forward_own(flat, views))}
         tokens = self.branches.forward_all(flat)  # [S, n, D]
@@ -362,20 +284,17 @@ class ViewAdaptiveField(Field):
         if mode.fusion:
             tokens, alpha = self.attention(tokens)
         own = tokens.gather(1, views.clamp_min(0)[:, None, None].expand(-1, 1, d)).squeeze(1)
-        canonical = flat if mode.canonical_shared else tokens.mean(1)
-        feature = torch.where(novel[:, None], canonical, own)
+        feature = torch.where(novel[:, None], flat, own)
         out = {"rgb": self.base.decode_color(feature)}
-        if mode.also_canonical and not mode.canonical_shared:
-            out["rgb_canonical"] = self.base.decode_color(canonical)
         if mode.fusion and mode.training:
-            reg_tokens, reg_alpha = tokens, alpha
-            reach = self.config.regularizers_shared_scale if self.config.regularizers_reach_shared else 0.0
-            if reach < 1.0 and (self.config.entropy_weight > 0 or self.config.consistency_weight > 0):
-                reg_tokens, reg_alpha = self.attention(self.branches.forward_all(scale_gradient(flat, reach)))
-            if self.config.entropy_weight > 0:
-                out["va_entropy"] = attention_entropy(reg_alpha)
-            if self.config.consistency_weight > 0:
-                out["va_consistency"] = feature_consistency(reg_tokens)
+            if cfg.entropy_weight > 0 or cfg.consistency_weight > 0:
+                # the regularizers train the branches and the attention only: a second pass on f_shared
+                # detached, since their gradient on the shared field can dissolve the surface
+                reg_tokens, reg_alpha = self.attention(self.branches.forward_all(flat.detach()))
+                if cfg.entropy_weight > 0:
+                    out["va_entropy"] = attention_entropy(reg_alpha)
+                if cfg.consistency_weight > 0:
+                    out["va_consistency"] = feature_consistency(reg_tokens)
             out["va_attention"] = alpha.detach().mean(1)  # [S, n, n], over the heads
             if weights is not None:
                 out["va_attention_weights"] = weights.detach()
@@ -433,14 +352,6 @@ class ViewAdaptiveField(Field):
         return groups
 
     def training_callbacks(self) -> list:
-        cfg = self.config
-        if cfg.canonical == "mean" and cfg.fused_samples_per_ray > 0 and self.attention is not None:
-            # checked for training only: a run trained before this option existed still loads
-            raise ConfigError(
-                "canonical='mean' fuses every visible sample of a novel view, but with fused_samples_per_ray="
-                f"{cfg.fused_samples_per_ray} the attention and the consistency loss train only on each ray's "
-                "heaviest samples (measured: 3.5 dB lower held-out PSNR on va-neus); set "
-                "pipeline.model.field.fused_samples_per_ray=0 with canonical=mean, or keep canonical=shared")
         callbacks = [phase_callback(self)]
         if self.config.diagnostics_scale > 0:
             callbacks.append(diagnostics_callback(self))
@@ -472,8 +383,6 @@ class ColorMode:
     """The attention fusion is on (phase 3)."""
     training: bool
     """The regularizers and the attention record are wanted (train mode)."""
-    canonical_shared: bool
-    """The canonical feature is f_shared (else the mean over views of f_fused,i)."""
     also_canonical: bool
     """``rgb_canonical`` is wanted beside ``rgb`` (diagnostics)."""
     min_sample_weight: float
@@ -482,8 +391,6 @@ class ColorMode:
     """Fused samples per ray while fusion is on (0: every visible sample; always 0 without fusion)."""
     shared_colour: bool = False
     """``rgb_shared`` (the shared path's colour of every sample) is wanted for ``shared_colour_weight``."""
-    branch_detached: bool = False
-    """The branch path sees the shared features detached (``branch_colour_reaches_shared`` off, training)."""
 
 
 @dataclass(frozen=True)
@@ -516,13 +423,11 @@ def flat_views(camera_indices: Optional[torch.Tensor], n_samples: int, device: t
 def route_samples(weights: torch.Tensor, views: torch.Tensor, ray_indices: Optional[torch.Tensor],
                   mode: ColorMode) -> SampleRoutes:
     """Where each sample ``[S]`` goes, from its rendering weight, its view and its ray: samples heavier than
-    ``min_sample_weight`` take the adaptive path (with the shared canonical, only training views' samples:
-    a novel view's canonical colour is the shared one); in the fusion phase with ``fused_samples_per_ray``
+    ``min_sample_weight`` take the adaptive path (only training views' samples: a novel view's canonical
+    colour is the shared one); in the fusion phase with ``fused_samples_per_ray``
     k > 0 and known rays, only each ray's k heaviest are fused and the ray's other visible samples of a
     training view take their own branch."""
-    active = weights > mode.min_sample_weight
-    if mode.canonical_shared:
-        active &= views >= 0
+    active = (weights > mode.min_sample_weight) & (views >= 0)
     own_only = None
     if mode.fused_samples_per_ray > 0 and ray_indices is not None:
         heavy = heaviest_per_ray(weights, ray_indices, mode.fused_samples_per_ray)
@@ -563,7 +468,7 @@ def heaviest_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor, k: int) -
 def _heaviest_one_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor) -> torch.Tensor:
     """:func:`heaviest_per_ray` for ``k = 1`` (the default ``fused_samples_per_ray``) by two scatter
     reductions instead of two sorts: each ray's largest weight, then the first sample of the ray that
-    carries it (0.3 ms against 10 ms for a training batch's 32k samples, one thread, loaded machine)."""
+    carries it."""
     rays = ray_indices.long()
     n_rays = int(rays.max()) + 1
     top = weights.new_full((n_rays,), -torch.inf).scatter_reduce(0, rays, weights, "amax")

@@ -2,11 +2,13 @@
 
 Phase 1 trains the shared field alone; phase 2 adds the per-view branches at the full learning rate
 while the shared field goes on at ``shared_lr_scale`` of its own (1.0 by default; the paper's 0.1);
-phase 3 switches the attention fusion on. Phase boundaries are fractions of the step budget, so the phase of a step is a pure function of
-(step, budget): a resumed run lands in the same phase without extra state.
+phase 3 switches the attention fusion on. Phase boundaries are fractions of the step budget, so the
+phase of a step is a pure function of (step, budget): a resumed run lands in the same phase without
+extra state.
 
-At the end of phase 1 the callback can measure whether the inputs disagree at all (see
-:func:`view_residuals`) and, if they do not, keep the run in phase 1: "skip what a scene doesn't need".
+At the end of phase 1 the callback can test whether the inputs disagree at all (silhouette support and
+colour cast) and, if they do not, keep the run in phase 1: "skip what a scene doesn't need". The per-view
+residuals of :func:`view_residuals` are recorded beside that decision.
 """
 
 from __future__ import annotations
@@ -32,7 +34,7 @@ PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branche
 
 RESIDUALS_FILE = "view_residuals.json"
 COLOUR_CAST_GRID = 96
-"""Marching-cubes grid of the surface the colour-cast test fits on (2-3 s on one thread at 4 views)."""
+"""Marching-cubes grid of the surface the colour-cast test fits on."""
 
 
 def phase_at(step: int, max_steps: int, pretrain_fraction: float, branch_fraction: float) -> int:
@@ -101,15 +103,6 @@ def residual_spread_db(residuals: List[Dict[str, float]]) -> float:
     return max(values) - min(values)
 
 
-def inputs_look_consistent(residuals: List[Dict[str, float]], threshold_db: float) -> bool:
-    """True when no view falls more than ``threshold_db`` below the best-explained view.
-
-    Under consistent inputs the shared field explains every view about equally well; a view that
-    disagrees with the others is explained worse than the rest.
-    """
-    return residual_spread_db(residuals) <= threshold_db
-
-
 def phase_callback(field: "ViewAdaptiveField") -> TrainingCallback:
     """The trainer callback that sets the field's phase; it returns the learning-rate factor of the
     shared field's optimizer groups (``shared_lr_scale`` once the branches train)."""
@@ -154,22 +147,15 @@ def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
 
 
 def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttributes, step: int) -> bool:
-    """Measure the per-view residuals, the silhouette support and the colour cast once, record them, and
-    say whether to skip the adaptive phases: only when the silhouettes and the colours (and, with
-    ``residual_test``, the residuals) say the inputs agree. The residual test called real generator
-    outputs consistent (a field can fit their disagreement away) and most clean GSO objects
-    inconsistent (a 4-view field at phase 1's end explains its views unevenly), so it only votes on
-    request."""
+    """Measure the silhouette support and the colour cast once, record them with the per-view residuals
+    (for the logs and reports: a field can fit a disagreement away, so they do not vote), and say whether
+    to skip the adaptive phases: only when the silhouettes and the colours say the inputs agree."""
     residuals = view_residuals(attributes.pipeline)
-    residual_ok = inputs_look_consistent(residuals, field.config.consistent_residual_db)
     support = input_silhouette_support(attributes.pipeline.datamanager)
     cast = input_colour_cast(attributes.pipeline, field.config.consistent_colour_cast)
     colour_ok = cast is None or cast.worst_shift <= field.config.consistent_colour_cast
-    consistent = (residual_ok or not field.config.residual_test) and (support is None or support.consistent) \
-        and colour_ok
-    record = {"step": step, "threshold_db": field.config.consistent_residual_db, "consistent": consistent,
-              "residuals_consistent": residual_ok, "residual_test_votes": field.config.residual_test,
-              "views": residuals,
+    consistent = (support is None or support.consistent) and colour_ok
+    record = {"step": step, "consistent": consistent, "views": residuals,
               "silhouette_support": support.as_dict() if support is not None else None,
               "colour_cast": None if cast is None else {**cast.as_dict(), "consistent": colour_ok,
                                                         "threshold": field.config.consistent_colour_cast}}
@@ -181,9 +167,9 @@ def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttribu
     details += f", colour cast {cast.worst_shift:.3f}" if cast is not None else ""
     if consistent:
         field.skipped.fill_(True)
-        attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB <= "
-                                  f"{field.config.consistent_residual_db} dB{details}): adaptive phases "
-                                  "skipped; force them with skip_consistent_scenes=false", skipped_adaptive=True)
+        attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB{details}): "
+                                  "adaptive phases skipped; force them with skip_consistent_scenes=false",
+                            skipped_adaptive=True)
     else:
         attributes.announce(step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB{details}): "
                                   "adaptive phases on", residual_spread_db=spread)

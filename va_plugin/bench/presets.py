@@ -1,8 +1,7 @@
 """Benchmark presets: which scenes, how long each run trains, and how it is evaluated.
 
 ``smoke`` checks the plumbing in well under two minutes (the test suite runs it); ``quick`` gives a first
-paired comparison on three level-2 scenes (the issue's target is twenty minutes on 2 idle CPU cores; Table 1
-measured 2026-11-23 with ``--jobs 2``: 9m10s, see benchmarks/RESULTS.md); ``full`` is the
+paired comparison on three level-2 scenes (within twenty minutes on 2 idle CPU cores); ``full`` is the
 protocol of the paper's Sec. 4.1 as far as this machine allows: every procedural object and every
 Google Scanned Object under ``--data-root``, with each method's default step budget.
 """

@@ -11,7 +11,7 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Tuple
+from typing import Any, Dict, List, Optional, Tuple
 
 from va_plugin.errors import ConfigError
 
@@ -74,31 +74,3 @@ class ResultStore:
             handle.flush()
             os.fsync(handle.fileno())
         self.rows[row["key"]] = row
-
-
-def print_record(record: Dict[str, Any], out: Optional[Path] = None) -> None:
-    """Print a measurement record as indented JSON, and write it to ``out`` too when given."""
-    text = json.dumps(_finite_or_none(record), indent=2)
-    if out is not None:
-        Path(out).parent.mkdir(parents=True, exist_ok=True)
-        Path(out).write_text(text)
-    print(text)
-
-
-def measure_run_folders(doc: str, runs_help: str, add_options: Callable[[Any], None],
-                        build_record: Callable[[Any], Dict[str, Any]]) -> int:
-    """The command line of a script that measures existing run folders: ``RUNS... [options] [--threads N]
-    [--out FILE]``; ``build_record(args)`` gives the record printed (and written to ``--out``)."""
-    import argparse
-
-    import torch
-
-    parser = argparse.ArgumentParser(description=doc, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("runs", type=Path, nargs="+", help=runs_help)
-    add_options(parser)
-    parser.add_argument("--threads", type=int, default=1)
-    parser.add_argument("--out", type=Path, default=None)
-    args = parser.parse_args()
-    torch.set_num_threads(args.threads)
-    print_record(build_record(args), args.out)
-    return 0

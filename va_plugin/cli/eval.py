@@ -9,7 +9,7 @@ from pathlib import Path
 from typing import List, Optional
 
 from va_plugin.cli.common import friendly_errors
-from va_plugin.cli.run import load_run, set_render_sharpness
+from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
 from va_plugin.utils.memory import check_mesh_resolution, check_render_size
 
@@ -35,9 +35,6 @@ def build_parser() -> argparse.ArgumentParser:
                         help="rays per pixel side for the textured mesh's renders (default 1: one ray through each "
                         "pixel centre, as the field's renders; 2 averages 2x2 rays, anti-aliased edges but a "
                         "box-filtered texture)")
-    parser.add_argument("--render-sharpness", type=float, default=None,
-                        help="neus runs: factor on the learned inv_s for the held-out renders (default: the run's "
-                        "own, 1 unless trained otherwise; 2 gives sharper renders, lower LPIPS, lower PSNR)")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
     parser.add_argument("--no-progress", action="store_true")
     return parser
@@ -48,8 +45,6 @@ def main(argv: Optional[List[str]] = None) -> int:
     args = build_parser().parse_args(argv)
     if args.mesh_resolution < 8 or args.image_scale <= 0:
         raise ConfigError("--mesh-resolution must be at least 8 and --image-scale positive")
-    if args.render_sharpness is not None and not args.render_sharpness > 0:
-        raise ConfigError(f"--render-sharpness must be positive, got {args.render_sharpness}")
     if args.scene is not None and not (args.scene / "scene.json").is_file():
         raise ConfigError(f"{args.scene} holds no scene.json")
     if args.texture:
@@ -62,7 +57,6 @@ def main(argv: Optional[List[str]] = None) -> int:
     from va_plugin.eval.evaluate import evaluate_run
 
     pipeline, state = load_run(args.load_dir, device=args.device)
-    set_render_sharpness(pipeline, args.render_sharpness)
     if pipeline.datamanager.test is not None:
         test_cameras = pipeline.datamanager.test.cameras
         check_render_size(test_cameras.width, test_cameras.height, args.image_scale, "--image-scale")
@@ -73,8 +67,6 @@ def main(argv: Optional[List[str]] = None) -> int:
         mesh = extract_mesh(pipeline.model, resolution=args.mesh_resolution, with_color=False)
     result = evaluate_run(pipeline, state, args.scene, args.mesh_resolution, args.image_scale, args.max_views,
                           progress=not args.no_progress, mesh=mesh)
-    if hasattr(pipeline.model.config, "render_sharpness"):
-        result["render_sharpness"] = pipeline.model.config.render_sharpness
     if args.texture:
         result.update(textured_mesh_scores(pipeline, mesh, args, "lpips" in result))
     output = args.output if args.output is not None else args.load_dir / "eval.json"

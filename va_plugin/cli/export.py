@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import List, Optional
 
 from va_plugin.cli.common import friendly_errors
-from va_plugin.cli.run import load_run, set_render_sharpness
+from va_plugin.cli.run import load_run
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -38,8 +38,6 @@ def build_parser() -> argparse.ArgumentParser:
     render.add_argument("--max-views", type=int, default=None, help="render at most this many held-out views")
     render.add_argument("--frames", type=int, default=24, help="turntable frames")
     render.add_argument("--turntable-resolution", type=int, default=128, help="turntable image size")
-    render.add_argument("--render-sharpness", type=float, default=None,
-                        help="neus runs: factor on the learned inv_s (default: the run's own; 2: sharper)")
     diag = sub.add_parser("diagnostics", help="view-adaptive runs: attention heat map and per-view inconsistency maps")
     diag.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
     diag.add_argument("--output-dir", type=Path, default=None, help="default RUN")
@@ -57,11 +55,10 @@ def main(argv: Optional[List[str]] = None) -> int:
 
     if getattr(args, "resolution", 2) < 2 or getattr(args, "frames", 1) < 1 or getattr(args, "scale", 1.0) <= 0:
         raise ConfigError("--resolution must be at least 2, --frames at least 1 and --scale positive")
-    if getattr(args, "render_sharpness", None) is not None and not args.render_sharpness > 0:
-        raise ConfigError(f"--render-sharpness must be positive, got {args.render_sharpness}")
     if args.what == "mesh":  # options are checked before minutes of marching cubes, not after
         from va_plugin.export.mesh import MESH_FORMATS
-        from va_plugin.export.texture import check_texture_output, check_texture_size
+        from va_plugin.export.texture import check_texture_size
+        from va_plugin.export.writing import check_texture_output
 
         if args.output is None:
             args.output = args.load_dir / ("mesh.glb" if args.texture else "mesh.ply")
@@ -76,7 +73,6 @@ def main(argv: Optional[List[str]] = None) -> int:
             raise ConfigError("--max-faces simplifies the mesh for its texture: it needs --texture")
         check_mesh_resolution(args.resolution)
     pipeline, _ = load_run(args.load_dir, device=args.device)
-    set_render_sharpness(pipeline, getattr(args, "render_sharpness", None))
     if args.what in ("render", "diagnostics"):
         views = pipeline.datamanager.test if args.what == "render" and pipeline.datamanager.test is not None \
             else pipeline.datamanager.train
@@ -89,7 +85,8 @@ def main(argv: Optional[List[str]] = None) -> int:
         mesh = extract_mesh(pipeline.model, resolution=args.resolution, largest_component=args.largest_component,
                             with_color=not args.texture)
         if args.texture:
-            from va_plugin.export.texture import MAX_TEXTURE_FACES, texture_run_mesh
+            from va_plugin.export.atlas import MAX_TEXTURE_FACES
+            from va_plugin.export.texture import texture_run_mesh
 
             textured, report, written = texture_run_mesh(pipeline, mesh, args.output, args.texture_size, args.fusion,
                                                          args.use_inconsistency,

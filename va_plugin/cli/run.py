@@ -7,7 +7,7 @@ from pathlib import Path
 from typing import Any, Dict, Optional, Tuple
 
 from va_plugin.engine.trainer import load_checkpoint, schedule_horizon
-from va_plugin.errors import CheckpointError, ConfigError
+from va_plugin.errors import CheckpointError
 from va_plugin.pipelines.base import Pipeline
 from va_plugin.utils.device import pick_device
 
@@ -34,16 +34,3 @@ def load_run(run_dir: Path, device: Optional[str] = None) -> Tuple[Pipeline, Dic
     pipeline.model.eval()
     return pipeline, state
 
-
-def set_render_sharpness(pipeline: Pipeline, value: Optional[float]) -> None:
-    """``--render-sharpness``: the factor on the learned inv_s for this command's novel-view renders (a
-    ``neus`` model option, see ``NeuSModelConfig.render_sharpness``); None leaves the run's own value."""
-    if value is None:
-        return
-    config = pipeline.model.config
-    if not hasattr(config, "render_sharpness"):
-        raise ConfigError(f"--render-sharpness is an option of SDF (neus) models; this run's model is "
-                          f"{type(pipeline.model).__name__}")
-    if not value > 0:
-        raise ConfigError(f"--render-sharpness must be positive, got {value}")
-    config.render_sharpness = float(value)

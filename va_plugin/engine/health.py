@@ -46,6 +46,10 @@ class TrainingDiverged(VAError):
     """Training kept blowing up although the guard lowered the learning rate."""
 
 
+class UnusableModel(VAError):
+    """Training finished, but the model does not render the object the masks show."""
+
+
 @dataclass
 class HealthConfig:
     """When a step counts as bad, and what the trainer does about it."""
@@ -64,22 +68,23 @@ class HealthConfig:
     max_restores: int = 20
     """Restores after which training stops with a clear error."""
     inv_s_tolerance: float = 0.5
-    """inv_s counts as below its start when it falls more than this fraction under it. At neus's inv_s
-    learning rate a dip of 10-25% in the first few dozen steps, before a surface forms, is normal
-    (measured on GSO objects); a diverging run falls by orders of magnitude (see ``inv_s_collapse``)."""
+    """inv_s counts as below its start when it falls more than this fraction under it: a small dip before a
+    surface forms is normal, a diverging run falls by orders of magnitude (see ``inv_s_collapse``)."""
     inv_s_collapse: float = 0.05
     """inv_s below this fraction of the highest value it reached (its start value before it rose) is a
-    collapse, rolled back like a blow-up (0: never). Over 135 healthy runs (GSO objects, real outputs)
-    the lowest inv_s after step 100 was 0.21 of its peak so far; the two runs whose surface dissolved
-    fell to 0.005 and 0.025 of it."""
+    collapse, rolled back like a blow-up (0: never)."""
     snapshot_inv_s_fraction: float = 0.5
     """The last good state is refreshed only while inv_s is at least this fraction of its peak (0: always),
-    so that a collapse, which takes some steps, rolls back to a state from before the fall. A healthy
-    dip below it (common around steps 300-900) only keeps an older good state a while longer. A run that
-    ends below it gets a warning in its summary (healthy runs end at 0.9-1.0 of their peak)."""
+    so that a collapse, which takes some steps, rolls back to a state from before the fall. A run that
+    ends below it gets a warning in its summary."""
     inv_s_saturation: float = 1e5
-    """inv_s at or above this counts as saturated, rolled back like a blow-up (0: never). Healthy runs end
-    at 1e2-1e4; 1e6 is its clamp."""
+    """inv_s at or above this counts as saturated, rolled back like a blow-up (0: never; 1e6 is inv_s's
+    clamp)."""
+    min_foreground_opacity: float = 0.2
+    """After training, the mean opacity the model renders on the masks' foreground must reach this, or the
+    run ends with :class:`UnusableModel` (0: no check)."""
+    final_check_after: int = 100
+    """Runs shorter than this many steps skip that check (a model this young may not have formed yet)."""
 
     def validate(self) -> None:
         from va_plugin.errors import ConfigError
@@ -295,3 +300,37 @@ class TrainingGuard:
         self.inv_s_now = state.get("inv_s_now", self.inv_s_start)
         self._warned = set(state.get("warned", []))
         self._snapshot = None
+
+
+@torch.no_grad()
+def foreground_opacity(pipeline, max_rays: int = 1024) -> Optional[float]:
+    """Mean opacity the model renders (canonical path) on up to ``max_rays`` of the training views'
+    foreground pixels, evenly spread over them; None when the input has no masks."""
+    from va_plugin.rays import RayBundle
+
+    datamanager = pipeline.datamanager
+    foreground = datamanager._foreground_pixels()
+    if foreground is None:
+        return None
+    pick = torch.linspace(0, foreground.numel() - 1, min(max_rays, foreground.numel())).round().long()
+    flat = foreground[pick].to(datamanager.device)
+    height, width = datamanager.images.shape[1:3]
+    views, within = flat // (height * width), flat % (height * width)
+    origins, directions = datamanager.cameras.generate_rays(views, within // width, within % width)
+    rays = RayBundle(origins, directions, torch.full_like(views, -1))
+    opacity = pipeline.model.render_rays(rays, keys=("accumulation",))["accumulation"]
+    return float(opacity.float().mean())
+
+
+def check_usable(pipeline, config: HealthConfig, steps: int) -> Optional[float]:
+    """Raise :class:`UnusableModel` when a run of at least ``config.final_check_after`` steps renders less
+    than ``config.min_foreground_opacity`` on the foreground; the opacity measured (None: not checked)."""
+    if config.min_foreground_opacity <= 0 or steps < config.final_check_after:
+        return None
+    opacity = foreground_opacity(pipeline)
+    if opacity is not None and not opacity >= config.min_foreground_opacity:
+        raise UnusableModel(
+            f"the trained model renders almost nothing where the masks show the object (mean opacity "
+            f"{opacity:.2f} on the foreground, below {config.min_foreground_opacity}): the run failed; "
+            "check the masks, or lower the learning rates (--set optimizers.fields.lr=...) and train again")
+    return opacity

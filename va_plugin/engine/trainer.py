@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import pickle
 import random
 import time
 import warnings
@@ -17,7 +18,7 @@ from tqdm import tqdm
 
 from va_plugin.config import InstantiateConfig, to_dict
 from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
-from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard
+from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check_usable
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError
@@ -46,10 +47,9 @@ class TrainerConfig(InstantiateConfig):
     max_steps: int = 2000
     """Training steps (the step budget)."""
     schedule_steps: int = 0
-    """Steps over which every schedule runs (learning-rate decay, grid levels opening, priors' starts,
-    annealing, the adaptive phases); 0: ``max_steps``. A shorter budget compresses the schedules to
-    ``max_steps``; a longer one trains its steps past ``schedule_steps`` at the schedules' final values
-    (see :func:`schedule_horizon`)."""
+    """Steps over which every schedule runs (learning rate, grid levels, priors' starts, annealing, the
+    adaptive phases); 0: ``max_steps``. A shorter budget compresses the schedules; a longer one trains
+    past ``schedule_steps`` at their final values (see :func:`schedule_horizon`)."""
     seed: int = 42
     """Seed of every random generator (the paper's 42)."""
     device: str = "auto"
@@ -120,6 +120,37 @@ def make_adam(param_groups) -> torch.optim.Optimizer:
     return torch.optim.Adam(param_groups)
 
 
+class RemovedOption:
+    """What a checkpoint's config holds, once loaded, in place of an option class this version no longer
+    has (an experiment that was switched off in that run and has since left the package)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        pass
+
+    def __setstate__(self, state: Any) -> None:
+        pass
+
+
+class _Unpickler(pickle.Unpickler):
+    """Unpickles checkpoints of earlier versions: a va_plugin class that is gone becomes :class:`RemovedOption`."""
+
+    def find_class(self, module: str, name: str) -> Any:
+        try:
+            return super().find_class(module, name)
+        except (ImportError, AttributeError):
+            if module.split(".")[0] in ("va_plugin", "method_configs"):
+                return RemovedOption
+            raise
+
+
+class _TolerantPickle:
+    """``torch.load``'s ``pickle_module`` with :class:`_Unpickler`."""
+
+    Unpickler = _Unpickler
+    load = staticmethod(lambda file, **kw: _Unpickler(file, **kw).load())
+    __name__ = "pickle"
+
+
 def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> Dict[str, Any]:
     """The newest readable checkpoint of a run; falls back to older ones when the newest is corrupt."""
     run_dir = Path(run_dir)
@@ -131,7 +162,7 @@ def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> Dict[str, Any]:
     problems = []
     for path in reversed(candidates):
         try:
-            state = torch.load(path, map_location=map_location, weights_only=False)
+            state = torch.load(path, map_location=map_location, weights_only=False, pickle_module=_TolerantPickle)
             if not isinstance(state, dict) or "model" not in state or "step" not in state:
                 raise ValueError("not a va-plugin checkpoint")
             if problems:
@@ -398,7 +429,8 @@ def train_run(config: TrainerConfig, resume: bool = True, trainer: Optional[Trai
 
     With ``resume``, the run continues from the newest checkpoint in ``config.output_dir`` when there is
     one (then ``on_resume(step)`` is called before training). A Ctrl-C writes a checkpoint and comes out
-    as :class:`TrainingInterrupted` (a KeyboardInterrupt). ``trainer``: one already set up from
+    as :class:`TrainingInterrupted` (a KeyboardInterrupt); a finished model that renders nothing on the
+    masks' foreground as :class:`~va_plugin.engine.health.UnusableModel`. ``trainer``: one already set up from
     ``config`` (for a caller that reads it before training)."""
     trainer = config.setup() if trainer is None else trainer
     resumed_from = trainer.step if resume and trainer.resume() else None
@@ -408,4 +440,5 @@ def train_run(config: TrainerConfig, resume: bool = True, trainer: Optional[Trai
         record = trainer.train()
     except KeyboardInterrupt:
         raise TrainingInterrupted(trainer.step, trainer.save_checkpoint()) from None
+    check_usable(trainer.pipeline, config.health, trainer.step)
     return TrainedRun(trainer, record, resumed_from)

@@ -3,11 +3,14 @@ already holds the appearance the inputs showed), so it can be scored like the fi
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import numpy as np
+from tqdm import tqdm
 
 from va_plugin.cameras import Cameras
 from va_plugin.data.scenes.raycast import MeshRenderer, SurfaceHits
-from va_plugin.export.texture import bilinear
+from va_plugin.export.views import bilinear
 
 
 class UnlitMeshRenderer(MeshRenderer):
@@ -52,8 +55,7 @@ def render_on_background(renderer: MeshRenderer, cameras: Cameras, index: int, b
 SCORE_SUPERSAMPLE = 1
 """Rays per pixel side when a textured mesh is scored: one ray through each pixel centre, the way the field's
 novel views are rendered, so the two are compared under the same pixel sampling. 2 (2x2 rays averaged)
-anti-aliases the edges but also box-filters the texture inside them (benchmarks/RESULTS.md, "Textured
-meshes scored like the field")."""
+anti-aliases the edges but also box-filters the texture inside them."""
 MAX_SUPERSAMPLE = 8
 
 
@@ -81,3 +83,21 @@ def textured_mesh_metrics(pipeline, textured, image_scale: float = 1.0, max_view
     return image_metrics(pipeline, image_scale, max_views, use_lpips, progress, render_dir,
                          render_fn=lambda cameras, i: render_on_background(renderer, cameras, i, background,
                                                                            supersample=supersample))
+
+
+def textured_turntable(textured, out_dir: Path, n_frames: int = 24, resolution: int = 256,
+                       progress: bool = True) -> Path:
+    """A turntable of a baked :class:`~va_plugin.export.texture.TexturedMesh` (ray cast, unlit, on white):
+    ``turntable.mp4`` and ``turntable.png`` (four frames side by side) in ``out_dir``; the video's path."""
+    from va_plugin.data.images import write_image
+    from va_plugin.export.render import turntable_cameras, write_video
+
+    out_dir = Path(out_dir)
+    out_dir.mkdir(parents=True, exist_ok=True)
+    renderer = textured_renderer(textured)
+    cameras = turntable_cameras(n_frames, resolution)
+    frames = [render_on_background(renderer, cameras, k)
+              for k in tqdm(range(n_frames), desc="turntable", disable=not progress)]
+    step = max(1, n_frames // 4)
+    write_image(out_dir / "turntable.png", np.concatenate(frames[::step][:4], axis=1))
+    return write_video(frames, out_dir / "turntable.mp4")

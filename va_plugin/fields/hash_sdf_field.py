@@ -7,7 +7,7 @@ view's pixels with high-frequency noise long before the shape is right, most of 
 
 The colour network is view-independent by default (``direction_frequencies = -1``): with four input
 directions a direction input lets it explain each view with colours that are wrong everywhere in
-between (measured: benchmarks/RESULTS.md, "Hash-grid SDF backbone").
+between.
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ from torch import nn
 
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import MLP, Field, HashGridFieldConfig
-from va_plugin.fields.encodings.hash_grid import CPU_CHUNK_POINTS, HashGridEncoding
+from va_plugin.fields.encodings.hash_grid import CPU_CHUNK_POINTS
 from va_plugin.fields.encodings.positional import optional_direction_encoding
 from va_plugin.fields.sdf_field import mlp_with_input_gradient
 
@@ -64,13 +64,6 @@ class HashSDFFieldConfig(HashGridFieldConfig):
     gradients reach neighbouring cells, at about 4x the geometry cost)."""
     finite_difference_cells: float = 0.5
     """Step of the finite differences, in cells of the finest open level."""
-    color_grid_levels: int = 0
-    """Levels of a second hash grid read by the colour MLP only (0: none, the colour sees the geometry feature
-    alone). It gives the surface colour capacity of its own, so texture detail need not pass through the SDF
-    MLP's feature and the geometry's tables; it opens coarse to fine with the geometry grid and spans the same
-    resolutions."""
-    color_grid_log2_hashmap_size: int = 16
-    """log2 of the most table entries a level of the colour grid may have."""
 
 
 class HashSDFField(Field):
@@ -89,18 +82,8 @@ class HashSDFField(Field):
         self.sdf_net = MLP(3 + self.encoding.output_dim, config.sdf_width, config.sdf_layers,
                            1 + config.geo_feature_dim, activation=nn.Softplus(beta=config.softplus_beta))
         self.direction_encoding = optional_direction_encoding(config.direction_frequencies)
-        if config.color_grid_levels < 0:
-            raise ConfigError(f"field.color_grid_levels must be 0 (no colour grid) or more, "
-                              f"got {config.color_grid_levels}")
-        self.color_encoding = None
-        if config.color_grid_levels > 0:
-            self.color_encoding = HashGridEncoding(
-                n_levels=config.color_grid_levels, n_features_per_level=config.features_per_level,
-                log2_hashmap_size=config.color_grid_log2_hashmap_size, base_resolution=config.base_resolution,
-                max_resolution=config.max_resolution, bound=config.bound)
         color_in = config.geo_feature_dim + (3 if config.use_normal else 0) + \
-            (self.direction_encoding.output_dim if self.direction_encoding is not None else 0) + \
-            (self.color_encoding.output_dim if self.color_encoding is not None else 0)
+            (self.direction_encoding.output_dim if self.direction_encoding is not None else 0)
         self.color_net = MLP(color_in, config.color_width, config.color_layers, 3, out_activation=nn.Sigmoid())
         self.feature_dim = config.color_width
         self._sphere_init()
@@ -138,9 +121,6 @@ class HashSDFField(Field):
     def update_step(self, step: int, max_steps: int) -> None:
         active = self.config.active_levels(step, max_steps)
         self.encoding.set_active_levels(active)
-        if self.color_encoding is not None:  # the same share of its levels open
-            self.color_encoding.set_active_levels(
-                max(1, math.ceil(self.color_encoding.n_levels * active / self.config.n_levels)))
 
     def finite_difference_step(self) -> float:
         """Step (world units) of the finite-difference gradient: a fraction of the finest open cell."""
@@ -191,8 +171,6 @@ class HashSDFField(Field):
     # -- colour ---------------------------------------------------------------------------------
     def color_features(self, positions, directions, normals, geo_features) -> torch.Tensor:
         parts = [geo_features]
-        if self.color_encoding is not None:
-            parts.append(self.color_encoding(positions))
         if self.config.use_normal:
             parts.append(normals)
         if self.direction_encoding is not None:

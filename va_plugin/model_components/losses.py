@@ -7,18 +7,10 @@ import math
 import torch
 
 
-def rgb_loss(pred: torch.Tensor, target: torch.Tensor, kind: str = "l2") -> torch.Tensor:
-    """Photometric loss: mean squared error (``l2``, the paper's eq. 13) or mean absolute error (``l1``)."""
+def rgb_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+    """Photometric loss: the mean squared error (the paper's eq. 13)."""
     diff = pred - target
-    return (diff * diff).mean() if kind == "l2" else diff.abs().mean()
-
-
-def scale_gradient(x: torch.Tensor, scale) -> torch.Tensor:
-    """``x`` in the forward pass (exactly); ``scale`` times its gradient in the backward pass. ``scale`` is a
-    number (0 or less: ``x`` detached) or a tensor broadcast against ``x`` (held constant)."""
-    if not torch.is_tensor(scale) and scale <= 0.0:
-        return x.detach()
-    return x.detach() + scale * (x - x.detach())
+    return (diff * diff).mean()
 
 
 GRADIENT_BOUND = 1e12

@@ -89,18 +89,6 @@ def sdf_band(coarse_edges: torch.Tensor, coarse_sdf: torch.Tensor, t_mid: torch.
     return lowest.gather(1, section) * inv_s < margin
 
 
-def normal_smoothness(gradients: torch.Tensor, perturbed_gradients: torch.Tensor) -> torch.Tensor:
-    """Mean ``1 - cos`` between SDF gradients at surface points and at points a small random step
-    away, both ``[n, 3]``: 0 where the surface is locally flat, up to 2. A curvature prior that needs
-    first derivatives only (Neuralangelo's curvature term needs the Laplacian). The normals are taken
-    with a 1e-6 floor on the length, so a zero gradient gives a zero normal rather than NaN."""
-    if gradients.shape[0] == 0:
-        return gradients.sum() * 0.0
-    a = torch.nn.functional.normalize(gradients, dim=-1, eps=1e-6)
-    b = torch.nn.functional.normalize(perturbed_gradients, dim=-1, eps=1e-6)
-    return (1.0 - (a * b).sum(-1).clamp(-1.0, 1.0)).mean()
-
-
 def surface_crossings(sdf_fn: Callable[[torch.Tensor], torch.Tensor], origins: torch.Tensor,
                       directions: torch.Tensor, nears: torch.Tensor, fars: torch.Tensor,
                       n_samples: int, band: Optional[float] = 6.0) -> torch.Tensor:

@@ -46,16 +46,14 @@ class NGPModelConfig(ModelConfig):
     mask_weight: float = 0.1
     """Weight of the mask loss against the foreground mask (0 turns it off)."""
     distortion_weight: float = 0.01
-    """Weight of the distortion loss (mip-NeRF 360) that pulls each ray's weights together (0: off);
-    on the default scene it gained 0.5-0.8 dB held-out PSNR at an unchanged Chamfer distance."""
+    """Weight of the distortion loss (mip-NeRF 360) that pulls each ray's weights together (0: off)."""
     density_threshold: float = 10.0
     """Density of the extracted surface: the mesh is the level set density = threshold (mesh_field is
     threshold - density, negative inside)."""
     mesh_smoothing: float = 0.021
     """Width (scene units, the std of a Gaussian) by which the occupancy is smoothed before the mesh is
-    extracted (0: not smoothed; 0.021 is 1.5 cells of a 128^3 grid over a 0.9 scene radius). A density
-    field trained on few views is rough at the voxel scale: its raw level set has 1.9x the true area on
-    GSO-10 and grows rougher with more steps (benchmarks/RESULTS.md, "ngp mesh extraction")."""
+    extracted, since a density field trained on few views is rough at the voxel scale (0: not smoothed;
+    0.021 is 1.5 cells of a 128^3 grid over a 0.9 scene radius)."""
     fill_mesh_cavities: bool = True
     """Make empty space that is enclosed by the surface solid before the mesh is extracted (no camera
     sees it; a density shell leaves it behind its front wall)."""
@@ -96,7 +94,7 @@ class NGPModel(Model):
 
     # -- training -------------------------------------------------------------------------------
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
-        return self.with_shared_param_groups(self.field.param_groups())
+        return self.field.param_groups()
 
     def training_callbacks(self) -> List[object]:
         callbacks = list(super().training_callbacks())
@@ -127,9 +125,9 @@ class NGPModel(Model):
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         if self.training:
-            return self.apply_view_appearance(self._render(ray_bundle), ray_bundle)
+            return self._render(ray_bundle)
         with torch.no_grad():
-            return self.apply_view_appearance(self._render(ray_bundle), ray_bundle)
+            return self._render(ray_bundle)
 
     @timed("sampling")
     def _samples_to_evaluate(self, samples: RaySamples) -> tuple[torch.Tensor, Optional[tuple]]:
@@ -172,7 +170,7 @@ class NGPModel(Model):
         if self.training:
             self.samples_per_ray = positions.shape[0] / max(len(ray_bundle), 1)
         outputs = {
-            "rgb": renderers.render_rgb(self.rgb_weights(weights), scatter(color["rgb"], keep), self.background),
+            "rgb": renderers.render_rgb(weights, scatter(color["rgb"], keep), self.background),
             "accumulation": weights.sum(-1, keepdim=True),
             "depth": renderers.render_depth(weights, samples.t_mid),
             "weights": weights[keep],  # [n_kept], like the positions given to field.color
@@ -184,7 +182,7 @@ class NGPModel(Model):
 
     def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
         cfg = self.config
-        loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"], cfg.rgb_loss)}
+        loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"])}
         if cfg.mask_weight > 0 and "mask" in batch:
             loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
         if "distortion" in outputs:

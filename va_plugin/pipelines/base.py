@@ -11,7 +11,6 @@ from torch import nn
 from va_plugin.config import InstantiateConfig
 from va_plugin.data.datamanager import DataManagerConfig
 from va_plugin.model_components.losses import psnr_from_mse
-from va_plugin.model_components.view_blur import blurred_batch
 from va_plugin.models.base import ModelConfig, SceneInfo
 from va_plugin.models.neus import NeuSModelConfig
 from va_plugin.utils.stages import stage
@@ -45,19 +44,9 @@ class Pipeline(nn.Module):
         self.model.update_step(step)
         with stage("data"):
             ray_bundle, batch = self.datamanager.next_train(step)
-            warp = self.model.view_warp
-            if warp is not None and warp.active:  # targets read where the view's learned warp says
-                batch = self.datamanager.warped_targets(batch, warp)
-            blur = self.model.view_blur
-            blurring = blur is not None and blur.active
-            if blurring:  # a fifth of the pixels, each rendered by five rays
-                ray_bundle, batch, views = blurred_batch(blur, self.datamanager.cameras, ray_bundle, batch)
         with stage("rendering"):  # what the stages nested in the model's forward (sampling, ...) leave
             outputs = self.model.get_outputs(ray_bundle)
-            if blurring:
-                outputs = blur.combine(outputs, views)
             loss_dict = self.model.get_loss_dict(outputs, batch)
-        self.datamanager.record_batch_errors(outputs, batch)
         metrics = self.model.get_metrics_dict(outputs, batch)
         return loss_dict, metrics
 

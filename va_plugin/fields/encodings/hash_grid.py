@@ -348,13 +348,6 @@ class HashGridEncoding(nn.Module):
         mask[:n_active] = True
         return mask.flatten()
 
-    def level_mean_squares(self) -> torch.Tensor:
-        """``[n_levels]``: each level's mean squared feature over its table (differentiable), the terms
-        of a normalised weight decay that weighs every level alike whatever its size."""
-        squares = self.table.square().mean(dim=1)
-        ends = self.offsets[1:] + [self.table.shape[0]]
-        return torch.stack([squares[start:end].mean() for start, end in zip(self.offsets, ends)])
-
     def corner_indices(self, x: torch.Tensor) -> torch.Tensor:
         """Index of each point's 8 corners within each level's table (before the level offset).
 

@@ -1,0 +1,139 @@
+"""Input views seen from the surface: per surface point, the colour each view shows there and how much to
+trust it.
+
+A view sees a point when the point lies in front of it and in its image and nothing of the mesh lies in
+between (ray casting against the mesh itself). Its weight is the squared cosine of its angle to the surface
+normal times a ramp from the view's silhouette edge (edge pixels blend the object with the background), and,
+with inconsistency maps, a fall-off where the view disagrees with the shared object.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Optional
+
+import cv2
+import numpy as np
+import torch
+from tqdm import tqdm
+
+from va_plugin.cameras import Cameras
+from va_plugin.data.scenes.raycast import o3d
+
+EDGE_PIXELS = 3.0
+"""A view's weight rises from 0 at EDGE_MARGIN pixels inside its silhouette to 1 this many pixels further."""
+EDGE_MARGIN = 1.5
+"""Pixels this close to the silhouette edge blend the object with the background: they give no colour."""
+MIN_COS = 0.1
+"""Views seeing the surface more grazing than this (cos of the angle to the normal) are ignored."""
+INCONSISTENCY_SCALE = 0.05
+"""With inconsistency maps: a view keeps exp(-map / this) of its weight (0.05 = a clear disagreement)."""
+
+
+@dataclass
+class Views:
+    """Input views to bake from.
+
+    Attributes:
+        cameras: ``n`` cameras.
+        images: ``[n, H, W, 3]`` float32, composited on the background.
+        masks: ``[n, H, W]`` bool foreground masks, or None (then the mesh's own silhouettes are used).
+        inconsistency: ``[n, h, w]`` float32 per-view disagreement maps (any resolution), or None.
+    """
+
+    cameras: Cameras
+    images: np.ndarray
+    masks: Optional[np.ndarray] = None
+    inconsistency: Optional[np.ndarray] = None
+
+    def __len__(self) -> int:
+        return len(self.images)
+
+
+def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """``image [H, W, C]`` (or ``[H, W]``) at continuous pixel coordinates ``x, y [m]`` (pixel centres at
+    integers, clamped to the border): ``[m, C]`` (or ``[m]``)."""
+    h, w = image.shape[:2]
+    x = np.clip(x, 0.0, w - 1.0)
+    y = np.clip(y, 0.0, h - 1.0)
+    x0 = np.minimum(np.floor(x).astype(np.int64), max(w - 2, 0))
+    y0 = np.minimum(np.floor(y).astype(np.int64), max(h - 2, 0))
+    x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+    fx, fy = x - x0, y - y0
+    if image.ndim == 3:
+        fx, fy = fx[:, None], fy[:, None]
+    top = image[y0, x0] * (1 - fx) + image[y0, x1] * fx
+    bottom = image[y1, x0] * (1 - fx) + image[y1, x1] * fx
+    return (top * (1 - fy) + bottom * fy).astype(np.float32)
+
+
+def rays_through(cameras: Cameras, index: int, points: np.ndarray):
+    """Rays of view ``index`` through world points ``[m, 3]``: ``origins, directions [m, 3]``, the points'
+    distance along them ``[m]`` and their pixel coordinates ``[m, 2]`` (column, row)."""
+    pts = torch.as_tensor(points, dtype=torch.float32)
+    uv, _ = cameras.project(pts, index)
+    idx = torch.full((len(pts),), index, dtype=torch.long)
+    origins, directions = cameras.generate_rays(idx, uv[:, 1], uv[:, 0])
+    distance = ((pts - origins) * directions).sum(-1)
+    return origins.numpy(), directions.numpy(), distance.numpy(), uv.numpy()
+
+
+def silhouette_distance(scene, cameras: Cameras, index: int, mask: Optional[np.ndarray]) -> np.ndarray:
+    """Distance in pixels ``[H, W]`` to the nearest pixel outside the object in view ``index`` (0 outside);
+    the object is where the mesh is hit and, when given, ``mask`` is set."""
+    _, rows, cols = cameras.pixel_grid(index)
+    origins, directions = cameras.generate_rays(torch.full_like(rows, index), rows, cols)
+    rays = np.concatenate([origins.numpy(), directions.numpy()], -1).astype(np.float32)
+    inside = np.isfinite(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()).reshape(cameras.height,
+                                                                                           cameras.width)
+    if mask is not None:
+        inside &= mask
+    padded = np.pad(inside.astype(np.uint8), 1)  # the image border counts as an edge
+    return cv2.distanceTransform(padded, cv2.DIST_L2, 5)[1:-1, 1:-1]
+
+
+def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, normals: np.ndarray, views: Views,
+                 edge_pixels: float = EDGE_PIXELS, progress: bool = False):
+    """Colour and weight of every view at every surface point.
+
+    Args:
+        vertices, faces: the mesh (its triangles occlude).
+        points, normals: ``[m, 3]`` surface points and unit outward normals.
+    Returns:
+        colours ``[m, n, 3]``, weights ``[m, n]`` (0 where view k does not see the point) and
+        ``in_view [n]`` bool: whether any pixel of view k shows the mesh (inside the view's mask).
+    """
+    scene = o3d.t.geometry.RaycastingScene()
+    scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
+    edges = np.linalg.norm(vertices[faces[:, 1]] - vertices[faces[:, 0]], axis=-1)
+    tolerance = 0.5 * float(np.median(edges)) if len(edges) else 1e-3  # depth slack of the visibility test
+    m, n = len(points), len(views)
+    colours = np.zeros((m, n, 3), np.float32)
+    weights = np.zeros((m, n), np.float32)
+    in_view = np.zeros(n, bool)
+    cameras = views.cameras
+    for k in tqdm(range(n), desc="projecting views", disable=not progress):
+        edge = silhouette_distance(scene, cameras, k, None if views.masks is None else views.masks[k])
+        in_view[k] = bool(edge.max() > 0)
+        origins, directions, distance, pix = rays_through(cameras, k, points)
+        cos = -(normals * directions).sum(-1)
+        candidate = (cos > MIN_COS) & (distance > 0)
+        candidate &= (pix[:, 0] > -0.5) & (pix[:, 0] < cameras.width - 0.5)
+        candidate &= (pix[:, 1] > -0.5) & (pix[:, 1] < cameras.height - 0.5)
+        idx = np.nonzero(candidate)[0]
+        if len(idx) == 0:
+            continue
+        rays = np.concatenate([origins[idx], directions[idx]], -1).astype(np.float32)
+        t_hit = scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()
+        idx = idx[t_hit >= distance[idx] - tolerance]  # nothing in front of the point
+        x, y = pix[idx, 0], pix[idx, 1]
+        w = cos[idx] ** 2 * np.clip((bilinear(edge, x, y) - EDGE_MARGIN) / max(edge_pixels, 1e-6), 0.0, 1.0)
+        if views.inconsistency is not None:
+            imap = views.inconsistency[k]
+            sx, sy = imap.shape[1] / cameras.width, imap.shape[0] / cameras.height
+            spread = bilinear(imap, (x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5)
+            w = w * np.exp(-np.maximum(spread, 0.0) / INCONSISTENCY_SCALE)
+        keep = w > 0
+        colours[idx[keep], k] = bilinear(views.images[k], x[keep], y[keep])
+        weights[idx[keep], k] = w[keep]
+    return colours, weights, in_view
