@@ -38,6 +38,7 @@ setup(
             "va-export = va_plugin.cli.export:main",
             "va-eval = va_plugin.cli.eval:main",
             "va-demo = va_plugin.cli.demo:main",
+            "va-recon = va_plugin.cli.recon:main",
             "va-batch = va_plugin.batch.cli:main",
         ],
         "va_plugin.methods": METHODS,

@@ -119,7 +119,7 @@ def test_va_train_refuses_a_broken_scene(breakage, message, tiny_scene, tmp_path
     (["neus", "--set", "pipeline.datamanager.dataparser.scene_radius=2"], "contradictory scene radius"),
     (["neus", "--set", "pipeline.datamanager.rays_per_batch=0"], "rays_per_batch must be positive"),
     (["neus", "--set", "health.lr_backoff=2"], "lr_backoff"),
-    (["neus", "--steps", "0"], "max_steps must be at least 1"),
+    (["neus", "--steps", "0"], "--steps must be at least 1, got 0"),
     # values out of range: refused before any work, never a traceback or a run that trains backwards
     (["neus", "--set", "optimizers.fields.lr=-1"], "optimizers.fields.lr must be >= 0"),
     (["neus", "--set", "optimizers.variance.eps=0"], "eps must be a finite number > 0"),
@@ -233,7 +233,7 @@ def test_va_export_says_when_the_mesh_is_the_bounding_sphere(trained, tmp_path, 
 @pytest.mark.parametrize("argv, message", [
     (["--method", "nope"], "unknown method 'nope'"),
     (["--resolution", "0"], "at least 8 pixels"),
-    (["--steps", "0", "--resolution", "24"], "max_steps must be at least 1"),
+    (["--steps", "0", "--resolution", "24"], "--steps must be at least 1, got 0"),
     (["--preset", "turbo", "--resolution", "24"], "unknown preset 'turbo'"),
 ])
 def test_va_demo_bad_options(argv, message, tmp_path, capsys, monkeypatch):

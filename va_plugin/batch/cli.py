@@ -21,7 +21,7 @@ from va_plugin.batch.inputs import find_objects
 from va_plugin.batch.job import Evaluation, ObjectJob
 from va_plugin.batch.manifest import Manifest
 from va_plugin.batch.summary import contact_sheet, write_summary
-from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
 from va_plugin.cli.train import add_object_options
 from va_plugin.config import apply_override
 from va_plugin.errors import ConfigError
@@ -85,7 +85,7 @@ def check_options(args: argparse.Namespace) -> None:
     if args.threads < 1 or (args.workers is not None and args.workers < 1):
         raise ConfigError("--workers and --threads must be at least 1")
     if args.steps is not None and args.steps < 1:
-        raise ConfigError("--steps must be at least 1")
+        raise ConfigError(f"--steps must be at least 1, got {args.steps}")
     if args.mesh_resolution < 8 or args.eval_image_scale <= 0 or args.eval_samples < 1:
         raise ConfigError("--mesh-resolution must be at least 8, --eval-image-scale positive and --eval-samples "
                           "at least 1")
@@ -97,6 +97,7 @@ def check_options(args: argparse.Namespace) -> None:
         from va_plugin.export.texture import check_texture_size
 
         check_texture_size(args.texture_size)
+    check_output_dir(args.out, "--out")
     if args.engine == "ray":
         import_ray()
 

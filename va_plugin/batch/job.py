@@ -3,9 +3,12 @@
 :func:`run_object` is the one job function of every engine (the engines only decide where and when it
 runs). It trains the object's run folder (continuing from its newest checkpoint when a killed batch left
 one), loads the finished run back as ``va-export`` and ``va-eval`` do, writes ``mesh.ply`` (vertex
-colours), the textured ``mesh.glb`` (unless the batch turned textures off) and a small grey picture of the
-mesh (``thumbnail.png``, for the contact sheet), and evaluates the run when the object has ground truth. It never raises for a bad object: the record says ``failed`` with the error's one line, and
-the traceback goes to the object's ``batch.log``, which also takes everything the job prints.
+colours), the textured ``mesh.glb`` (unless the batch turned textures off), a small grey picture of the
+mesh (``thumbnail.png``, for the contact sheet), optionally a turntable of the textured mesh, and evaluates
+the run when the object has ground truth. :func:`reconstruct` is that work (``va-recon`` calls it with
+progress bars); :func:`run_object` wraps it for a batch: it never raises for a bad object (the record says
+``failed`` with the error's one line) and sends the traceback and everything the job prints to the
+object's ``batch.log``.
 """
 
 from __future__ import annotations
@@ -25,6 +28,7 @@ LOG_FILE = "batch.log"
 MESH_FILE = "mesh.ply"
 TEXTURED_MESH_FILE = "mesh.glb"
 THUMBNAIL_FILE = "thumbnail.png"
+TURNTABLE_DIR = "turntable"
 METRICS = ("cd", "iou", "fscore", "psnr", "ssim", "lpips")
 
 
@@ -57,6 +61,10 @@ class ObjectJob:
     """Side of the baked texture (``va-export mesh --texture``); 0: vertex colours only."""
     fusion: str = "robust"
     """How the texture fuses disagreeing views (``va-export mesh --fusion``)."""
+    turntable_frames: int = 0
+    """Frames of a turntable of the textured mesh (``RUN/turntable/``); 0: none."""
+    progress: bool = False
+    """Progress bars for training, bake and turntable (off in batches, whose jobs log to a file)."""
 
 
 def _one_line(exc: BaseException) -> str:
@@ -82,7 +90,7 @@ def run_object(job: ObjectJob) -> Dict[str, Any]:
             redirect_stderr(log):
         print(f"--- {time.strftime('%Y-%m-%d %H:%M:%S')} {job.method} on {job.data} (pid {os.getpid()})")
         try:
-            record.update(_reconstruct(job))
+            record.update(reconstruct(job))
             record["status"] = "ok"
         except Exception as exc:  # a bad object is recorded, the batch goes on
             traceback.print_exc()
@@ -96,47 +104,60 @@ def train_config(job: ObjectJob):
     from va_plugin.cli.train import make_config
     from va_plugin.registry import discover_methods
 
-    args = argparse.Namespace(method=job.method, data=Path(job.data), output_dir=Path(job.run_dir), masks=None,
-                              no_progress=True, default_scene_resolution=None, **job.options)
+    args = argparse.Namespace(**{"masks": None, **job.options}, method=job.method, data=Path(job.data),
+                              output_dir=Path(job.run_dir), no_progress=not job.progress, default_scene_resolution=None)
     config = make_config(args, discover_methods())
     config.num_threads = job.threads
     return config
 
 
-def _reconstruct(job: ObjectJob) -> Dict[str, Any]:
+def reconstruct(job: ObjectJob, on_resume=None) -> Dict[str, Any]:
+    """Train (or continue) the object's run, then export, picture and evaluate it; the paths and figures.
+    Raises on a bad object (:func:`run_object` turns that into a record). ``on_resume(step)`` is called
+    when the run continues from a checkpoint."""
     import torch
 
     from va_plugin.cli.run import load_run
     from va_plugin.engine.trainer import train_run
 
-    torch.set_num_threads(job.threads)
+    if job.threads > 0:
+        torch.set_num_threads(job.threads)
     # a Ctrl-C in a batch run in this process leaves a checkpoint: --resume continues from there
-    resumed_from = train_run(train_config(job), resume=True).resumed_from
+    resumed_from = train_run(train_config(job), resume=True, on_resume=on_resume).resumed_from
     # what va-export and va-eval see: the run as its last checkpoint holds it
     pipeline, state = load_run(Path(job.run_dir), device=job.options.get("device"))
-    mesh, paths = export_mesh(pipeline, job)
+    mesh, textured, paths = export_mesh(pipeline, job)
+    train = pipeline.datamanager.train
     out: Dict[str, Any] = {"steps": int(state["step"]), "train_seconds": round(float(state["train_seconds"]), 2),
+                           "views": len(train), "masks": train.metadata.get("mask_source", "scene's alpha"),
                            **paths, "resumed_from_step": resumed_from}
     out["thumbnail"] = str(write_thumbnail(mesh, job))
+    if job.turntable_frames and textured is not None:
+        from va_plugin.eval.mesh_render import textured_turntable
+
+        out["turntable"] = str(textured_turntable(textured, Path(job.run_dir) / TURNTABLE_DIR, job.turntable_frames,
+                                                  progress=job.progress))
     out.update(evaluate(pipeline, state, mesh, job))
     return out
 
 
-def export_mesh(pipeline, job: ObjectJob) -> Tuple[Any, Dict[str, str]]:
+def export_mesh(pipeline, job: ObjectJob) -> Tuple[Any, Any, Dict[str, str]]:
     """The run's mesh as ``va-export mesh`` writes it: ``RUN/mesh.ply`` with vertex colours from the
     canonical colour path, and with a texture size also ``RUN/mesh.glb`` (``va-export mesh --texture``:
-    UV atlas, texture baked from the input views; ``mesh_bake.png`` and ``mesh_bake.json`` beside it)."""
+    UV atlas, texture baked from the input views; ``mesh_bake.png`` and ``mesh_bake.json`` beside it).
+    Returns the mesh, the textured mesh (None without a texture) and the paths written."""
     from va_plugin.export.mesh import extract_mesh, write_mesh
 
     mesh = extract_mesh(pipeline.model, resolution=job.evaluation.mesh_resolution)
     paths = {"mesh": str(write_mesh(mesh, Path(job.run_dir) / MESH_FILE))}
+    textured = None
     if job.texture_size:
         from va_plugin.export.texture import texture_run_mesh
 
-        _, _, written = texture_run_mesh(pipeline, mesh, Path(job.run_dir) / TEXTURED_MESH_FILE, job.texture_size,
-                                         job.fusion, progress=False)
+        textured, _, written = texture_run_mesh(pipeline, mesh, Path(job.run_dir) / TEXTURED_MESH_FILE,
+                                                job.texture_size, job.fusion, progress=job.progress)
         paths["textured_mesh"] = str(written[0])
-    return mesh, paths
+    return mesh, textured, paths
 
 
 def write_thumbnail(mesh, job: ObjectJob) -> Path:

@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import os
 import sys
+import tempfile
 import warnings
 from pathlib import Path
 from typing import Callable
@@ -47,3 +48,24 @@ def _one_line_warning(message, category, filename, lineno, file=None, line=None)
 def cache_dir() -> Path:
     """Where generated default data lives (``$VA_PLUGIN_CACHE`` or ``~/.cache/va-plugin``)."""
     return Path(os.environ.get("VA_PLUGIN_CACHE", Path.home() / ".cache" / "va-plugin"))
+
+
+def check_output_dir(path: Path, flag: str) -> None:
+    """Refuse an output folder that cannot be one (a file, or under a file) or cannot be written, before
+    any work and without creating anything; ``flag`` is the option's name as the user typed it."""
+    path = Path(path).expanduser()
+    if path.exists() and not path.is_dir():
+        raise VAError(f"{flag} {path} is a file, not a folder; choose another {flag}")
+    existing = path
+    while not existing.exists():
+        existing = existing.parent
+    if not existing.is_dir():
+        raise VAError(f"{flag} {path} cannot be created: {existing} is a file")
+    try:  # os.access alone says yes to root on a read-only mount
+        writable = os.access(existing, os.W_OK | os.X_OK)
+        if writable:
+            tempfile.TemporaryFile(dir=existing).close()
+    except OSError:
+        writable = False
+    if not writable:
+        raise VAError(f"{flag} {path} cannot be written: {existing} is read-only for this user")

@@ -7,7 +7,7 @@ import sys
 from pathlib import Path
 from typing import List, Optional
 
-from va_plugin.cli.common import EXIT_INTERRUPTED, cache_dir, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, cache_dir, check_output_dir, friendly_errors
 from va_plugin.config import apply_override, format_options
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
@@ -16,12 +16,17 @@ from va_plugin.registry import discover_methods
 
 
 def build_parser(methods) -> argparse.ArgumentParser:
-    listing = "\n".join(f"  {name:<14} {spec.description}" for name, spec in methods.items())
+    lines = []
+    for name, spec in methods.items():
+        lines.append(f"  {name:<14} {spec.description}")
+        lines.extend(f"  {'':<14}   --preset {preset}: {p.description}" for preset, p in sorted(spec.presets.items()))
+    listing = "\n".join(lines)
     parser = argparse.ArgumentParser(
         prog="va-train", formatter_class=argparse.RawDescriptionHelpFormatter,
-        description="Train a reconstruction method on a scene.\n\nmethods:\n" + listing,
+        description="Train a reconstruction method on a scene (neus is the recommended method; va-recon does "
+                    "training, textured mesh and turntable in one command).\n\nmethods and their presets:\n" + listing,
         epilog="Without --data, the embedded default scene (a procedural object on the SyncDreamer rig) "
-               "is generated and used.")
+               "is generated and used. Defaults are the method's; --help-config lists every --set key.")
     parser.add_argument("method", help="one of the methods listed above")
     parser.add_argument("--data", type=Path, default=None, help="scene folder or generator output")
     add_object_options(parser)
@@ -40,13 +45,25 @@ def build_parser(methods) -> argparse.ArgumentParser:
     return parser
 
 
+VIEWS_HELP = "SyncDreamer: training views of its 16, uniform in azimuth: 4, 8, 12, 16 or all"
+VIEW_COUNTS = (4, 8, 12, 16)
+
+
+def parse_views(text: str):
+    """``--views``: one of :data:`VIEW_COUNTS`, or ``all`` (every view the input has)."""
+    if text.strip().lower() == "all":
+        return "all"
+    if text.strip().isdigit() and int(text) in VIEW_COUNTS:
+        return int(text)
+    raise argparse.ArgumentTypeError(f"{text!r} is not one of 4, 8, 12, 16 or all")
+
+
 def add_object_options(parser: argparse.ArgumentParser) -> None:
     """The options that make sense for every object of a batch (va-batch takes them too): how to read the
     input and what to train."""
     parser.add_argument("--data-format", default="auto", metavar="{auto," + ",".join(FORMATS) + "}",
                         help="input format (default auto: detected from the input)")
-    parser.add_argument("--views", type=int, default=None,
-                        help="SyncDreamer: training views of the 16, uniform in azimuth (4, 8, 12 or 16; default 4)")
+    parser.add_argument("--views", type=parse_views, default=None, help=VIEWS_HELP + " (default: all)")
     parser.add_argument("--elevation", type=float, default=None,
                         help="SyncDreamer: camera elevation in degrees (default 30)")
     parser.add_argument("--rig", default=None, help="Zero123++: model version, v1.1 or v1.2 (default v1.2)")
@@ -70,6 +87,10 @@ def apply_generator_options(parser_config, args: argparse.Namespace) -> None:
     for flag, (option, formats) in GENERATOR_OPTIONS.items():
         value = getattr(args, flag)
         if value is None:
+            continue
+        if value == "all":  # every view the input has: the generators' parsers train on all by default
+            if hasattr(parser_config, option):
+                setattr(parser_config, option, max(VIEW_COUNTS))
             continue
         if not hasattr(parser_config, option):
             raise ConfigError(f"--{flag} applies to {formats} inputs only")
@@ -95,6 +116,8 @@ def make_config(args: argparse.Namespace, methods, resolve_data: bool = True):
         apply_generator_options(config.pipeline.datamanager.dataparser, args)
     config.output_dir = args.output_dir if args.output_dir is not None else Path("outputs") / args.method
     if args.steps is not None:
+        if args.steps < 1:
+            raise ConfigError(f"--steps must be at least 1, got {args.steps}")
         config.max_steps = args.steps
     if args.seed is not None:
         config.seed = args.seed
@@ -125,6 +148,7 @@ def main(argv: Optional[List[str]] = None) -> int:
         return 0
     config = make_config(args, methods)
     run_dir = Path(config.output_dir)
+    check_output_dir(run_dir, "--output-dir")
     from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints, train_run
 
     if not args.resume and list_checkpoints(run_dir):
@@ -150,6 +174,7 @@ def main(argv: Optional[List[str]] = None) -> int:
 
         path = export_run_mesh(trainer.pipeline, run_dir / "mesh.ply")
         print(f"mesh written to {path}")
+    print(f"next: va-export mesh --load-dir {run_dir} --texture   (textured mesh: {run_dir / 'mesh.glb'})")
     return 0
 
 

@@ -171,12 +171,15 @@ class GeneratorDataParser(DataParser):
             check_masks(masks, [f"mask of {n}" for n in names], key)
             images = [composite(split_alpha(t, background)[0], m, background) for t, m in zip(tiles, masks)]
             source = f"mask files ({self.config.masks})"
-        elif all(t.shape[2] == 4 for t in tiles):
+        elif all(t.shape[2] == 4 for t in tiles) and not all(opaque(t) for t in tiles):
             pairs = [split_alpha(t, background) for t in tiles]
             images, masks = [p[0] for p in pairs], [p[1] for p in pairs]
             check_masks(masks, [f"alpha of {n}" for n in names], key)
             source = "alpha channel"
         else:
+            if all(t.shape[2] == 4 for t in tiles):
+                warnings.warn(f"{self.config.data}: the alpha channel is opaque everywhere, so it holds no "
+                              "mask; the background is keyed out by its colour instead (or pass --masks)")
             rgb = [t[:, :, :3] for t in tiles]
             masks = [colour_key_mask(im, key, where=n) for im, n in zip(rgb, names)]
             images = [composite(im, m, background) for im, m in zip(rgb, masks)]
@@ -242,14 +245,19 @@ class SingleImageDataParser(GeneratorDataParser):
         return tiles, [f"{path.name} view {k}" for k in range(len(tiles))], [path] * len(tiles)
 
 
+def opaque(tile: np.ndarray) -> bool:
+    """Whether an RGBA tile's alpha is 1 everywhere (an image saved with alpha that carries no mask)."""
+    return tile.shape[2] == 4 and float(tile[:, :, 3].min()) >= 1.0 - 0.5 / 255
+
+
 # -- SyncDreamer ------------------------------------------------------------------------------------
 @dataclass
 class SyncDreamerDataParserConfig(GeneratorDataParserConfig):
     """A SyncDreamer output: one strip of 16 views on its 30-degree orbit."""
 
     _target: Type = field(default_factory=lambda: SyncDreamerDataParser)
-    num_views: int = 4
-    """Training views, uniform in azimuth from view 0 (4, 8, 12 or 16); the others are held out."""
+    num_views: int = 16
+    """Training views, uniform in azimuth from view 0 (4, 8, 12 or 16: all); the others are held out."""
     elevation_deg: float = rigs.RIG_ELEVATION_DEG
     """Elevation of the 16 cameras (SyncDreamer generates at 30 degrees)."""
     pixel_offset: float = 0.5
