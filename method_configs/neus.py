@@ -24,12 +24,11 @@ def neus_config() -> TrainerConfig:
         method_name="neus",
         pipeline=PipelineConfig(
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
-            # the crossings prior at 0.05 (it shrinks outlines and fills dents no input view holds open),
-            # and a floor under inv_s rising to 800 over the second half (renders with a hard edge)
+            # the crossings prior (shrinks outlines, fills dents) and a floor under inv_s rising to 800
             model=NeuSModelConfig(field=HashSDFFieldConfig(), n_samples=32, n_importance=32, up_sample_steps=2,
                                   crossings_weight=0.05, inv_s_floor=800.0),
         ),
-        # inv_s = exp(10 v) has its own learning rate, 2e-2, so that it sharpens within the budget
+        # inv_s has its own learning rate, so that it sharpens within the budget
         optimizers={"fields": OptimizerConfig(lr=1e-2), "variance": OptimizerConfig(lr=2e-2)},
         scheduler=SchedulerConfig(warmup_steps=100, final_fraction=0.05),
         max_steps=2000,
@@ -75,8 +74,7 @@ neus = MethodSpecification(
     description="NeuS surface reconstruction (hash-grid SDF field, up-sampling, eikonal + mask losses)",
     presets={
         "fast": Preset("500 steps, fewer rays and samples: a rough mesh quickly", _fast),
-        "mlp": Preset("the positional-encoding SDF network (4x128) that was the default before the hash grid, "
-                      "500 steps", _mlp),
+        "mlp": Preset("the positional-encoding SDF network (4x128), 500 steps", _mlp),
         "accurate": Preset("the paper's 4x256 network, 128 samples per ray, 6000 steps", _accurate),
     },
 )

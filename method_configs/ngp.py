@@ -17,8 +17,7 @@ def ngp_config() -> TrainerConfig:
         method_name="ngp",
         pipeline=PipelineConfig(
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
-            # view-independent colour and levels opening coarse to fine: with 4 views a colour that sees
-            # the direction fits each view with colours that are wrong in between
+            # view-independent colour and levels opening coarse to fine (few views overfit otherwise)
             model=NGPModelConfig(field=DensityFieldConfig(direction_frequencies=-1, coarse_to_fine_fraction=0.3),
                                  n_samples=96),
         ),

@@ -1,12 +1,8 @@
 """The ``va-neus`` method: NeuS with the paper's view-adaptive renderer wrapped around its field.
 
-The branches and the attention are sized to the hash-grid field's 64-wide colour feature f_shared
-(2 layers x 64, attention width 64) instead of the paper's 3 x 128 (sized to its 4 x 256 network),
-which on the hash backbone made a phase-2 step much dearer than a backbone step.
-
-In phases 2-3 the shared path's render of the training rays meets the inputs too
-(``shared_colour_weight=1``), so that the shared path, which the mesh and novel views come from, keeps
-fitting the training views. `va-ngp` keeps the field's default (0: the paper's loss)."""
+The branches and the attention are sized to the hash-grid field's 64-wide f_shared (2 layers x 64,
+attention width 64; the paper's 3 x 128 suits its 4 x 256 network). ``shared_colour_weight=1`` keeps
+the shared path, which the mesh and novel views come from, fitting the training views in phases 2-3."""
 
 from __future__ import annotations
 

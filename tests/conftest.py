@@ -20,10 +20,9 @@ SHARED_DATA = REPO.parent / "shared" / "data"
 def tiny_scene(tmp_path_factory) -> Path:
     """The default procedural object on the SyncDreamer rig at 24 x 24 px (4 inputs + held-out views);
     ``$VA_TEST_SCENE``: such a scene built beforehand (a machine without open3d, which renders it)."""
-    from va_plugin.data.scenes.builder import build_procedural_scene
-
     if os.environ.get("VA_TEST_SCENE"):
         return Path(os.environ["VA_TEST_SCENE"])
+    from va_plugin.data.scenes.builder import build_procedural_scene
 
     return build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=4, resolution=24)
 

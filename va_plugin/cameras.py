@@ -44,26 +44,17 @@ def look_at(eye: torch.Tensor, target: torch.Tensor, up: torch.Tensor) -> torch.
 
 @dataclass
 class Cameras:
-    """A set of ``n`` cameras sharing one image size.
+    """A set of ``n`` cameras sharing one image size."""
 
-    Attributes:
-        c2w: ``[n, 3, 4]`` camera-to-world, OpenCV axes.
-        fx, fy, cx, cy: ``[n]`` intrinsics in pixels (for orthographic cameras fx, fy are pixels per
-            world unit).
-        width, height: image size in pixels.
-        camera_type: ``"perspective"`` or ``"orthographic"``.
-        pixel_offset: where a pixel is sampled, see the module docstring.
-    """
-
-    c2w: torch.Tensor
-    fx: torch.Tensor
+    c2w: torch.Tensor  # [n, 3, 4] camera-to-world, OpenCV axes
+    fx: torch.Tensor  # [n] intrinsics in pixels (orthographic fx, fy: pixels per world unit)
     fy: torch.Tensor
     cx: torch.Tensor
     cy: torch.Tensor
-    width: int
+    width: int  # image size in pixels
     height: int
-    camera_type: str = PERSPECTIVE
-    pixel_offset: float = 0.5
+    camera_type: str = PERSPECTIVE  # or ORTHOGRAPHIC
+    pixel_offset: float = 0.5  # where a pixel is sampled, see the module docstring
 
     def __post_init__(self) -> None:
         n = self.c2w.shape[0]
@@ -98,11 +89,8 @@ class Cameras:
                        self.width, self.height, self.camera_type, self.pixel_offset)
 
     def scaled(self, factor: float) -> "Cameras":
-        """The same cameras for images resized by ``factor`` (e.g. 0.5 for half resolution).
-
-        Continuous image coordinates scale linearly, so ``cx`` and the focal lengths scale with the
-        image; this is exact for ``pixel_offset = 0.5`` and within half a pixel otherwise.
-        """
+        """The same cameras for images resized by ``factor`` (exact for ``pixel_offset = 0.5``, else
+        within half a pixel)."""
         width, height = max(1, round(self.width * factor)), max(1, round(self.height * factor))
         sx, sy = width / self.width, height / self.height
         return Cameras(self.c2w, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height,
@@ -110,14 +98,8 @@ class Cameras:
 
     def generate_rays(self, camera_indices: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor
                       ) -> Tuple[torch.Tensor, torch.Tensor]:
-        """Rays through pixels.
-
-        Args:
-            camera_indices: ``[n_rays]`` long.
-            rows, cols: ``[n_rays]`` pixel row (v) and column (u) indices (float allowed for jitter).
-        Returns:
-            origins ``[n_rays, 3]`` and unit directions ``[n_rays, 3]`` in world space.
-        """
+        """World origins ``[n_rays, 3]`` and unit directions ``[n_rays, 3]`` of the rays through pixels
+        ``rows, cols`` ``[n_rays]`` (float allowed) of the views ``camera_indices`` ``[n_rays]``."""
         c2w = self.c2w[camera_indices]
         x = (cols.float() + self.pixel_offset - self.cx[camera_indices]) / self.fx[camera_indices]
         y = (rows.float() + self.pixel_offset - self.cy[camera_indices]) / self.fy[camera_indices]
@@ -139,11 +121,8 @@ class Cameras:
         return torch.full_like(rows, camera_index), rows, cols
 
     def project(self, points: torch.Tensor, camera_index: int) -> Tuple[torch.Tensor, torch.Tensor]:
-        """Project world points ``[m, 3]`` into one view.
-
-        Returns:
-            ``uv [m, 2]`` (column, row) in pixel-index coordinates, and depth ``[m]`` along +z.
-        """
+        """Project world points ``[m, 3]`` into one view: ``uv [m, 2]`` (column, row) in pixel-index
+        coordinates, and depth ``[m]`` along +z."""
         c2w = self.c2w[camera_index]
         rotation, position = c2w[:, :3], c2w[:, 3]
         local = (points - position) @ rotation
@@ -167,7 +146,7 @@ def validate_poses(c2w: torch.Tensor) -> None:
             raise DataError(f"camera {i}: pose contains NaN or infinite values")
         rotation = c2w[i, :, :3].double()
         gram = rotation.T @ rotation
-        if (gram - torch.eye(3, dtype=gram.dtype)).abs().max() > 1e-3:
+        if (gram - torch.eye(3, dtype=gram.dtype, device=gram.device)).abs().max() > 1e-3:
             raise DataError(f"camera {i}: pose rotation is not orthonormal (scaled, sheared or singular)")
         if torch.det(rotation) < 0:
             raise DataError(f"camera {i}: pose rotation is a reflection (determinant -1)")

@@ -189,11 +189,6 @@ def _nearest_keys(config: Any, key: str) -> str:
     return "; --help-config lists every key"
 
 
-def replace(config: Any, **changes: Any) -> Any:
-    """A shallow copy of a dataclass config with some fields changed."""
-    return dataclasses.replace(config, **changes)
-
-
 @functools.lru_cache(maxsize=None)
 def field_docstrings(cls: type) -> Dict[str, str]:
     """The docstring under each field of a dataclass and of its dataclass bases (nerfstudio's habit: a

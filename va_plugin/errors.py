@@ -1,9 +1,5 @@
-"""User-facing errors.
-
-Anything a user can cause (a bad path, a malformed file, a contradictory option) raises ``VAError``
-with one line that says what is wrong and how to fix it. The command-line entry points print that
-line and exit with status 2 instead of showing a traceback.
-"""
+"""User-facing errors: anything a user can cause raises ``VAError`` with one line saying what is wrong
+and how to fix it; the command-line entry points print it and exit with status 2."""
 
 
 class VAError(Exception):
@@ -15,9 +11,8 @@ class DataError(VAError):
 
 
 class ConfigError(VAError, ValueError):
-    """An unknown method, preset, option, an option's value out of its range, or an inconsistent
-    combination of options (also a ``ValueError``, so code that builds components directly can catch
-    it as one)."""
+    """An unknown method, preset or option, a value out of range, or inconsistent options (also a
+    ``ValueError``)."""
 
 
 class CheckpointError(VAError):

@@ -10,20 +10,13 @@ import torch
 
 @dataclass
 class RayBundle:
-    """A batch of rays.
+    """A batch of rays."""
 
-    Attributes:
-        origins: ``[n_rays, 3]``.
-        directions: ``[n_rays, 3]`` unit vectors.
-        camera_indices: ``[n_rays]`` long, the training view each ray comes from (-1 for novel views).
-        nears, fars: ``[n_rays, 1]`` where the ray enters and leaves the scene bound (filled by the model).
-    """
-
-    origins: torch.Tensor
-    directions: torch.Tensor
-    camera_indices: torch.Tensor
-    nears: Optional[torch.Tensor] = None
-    fars: Optional[torch.Tensor] = None
+    origins: torch.Tensor  # [n_rays, 3]
+    directions: torch.Tensor  # [n_rays, 3] unit vectors
+    camera_indices: torch.Tensor  # [n_rays] long: the training view of each ray (-1: novel view)
+    nears: Optional[torch.Tensor] = None  # [n_rays, 1] where the ray enters the scene bound (set by the model)
+    fars: Optional[torch.Tensor] = None  # [n_rays, 1] where it leaves it
 
     def __len__(self) -> int:
         return self.origins.shape[0]
@@ -41,21 +34,13 @@ class RayBundle:
 
 @dataclass
 class RaySamples:
-    """Samples along rays: section mid-points ``t_mid`` with lengths ``deltas``.
+    """Samples along rays: section mid-points ``t_mid`` with lengths ``deltas``."""
 
-    Attributes:
-        positions: ``[n_rays, n_samples, 3]`` at the section mid-points.
-        directions: ``[n_rays, 3]`` unit ray directions.
-        t_mid: ``[n_rays, n_samples]`` distances of the mid-points along the ray.
-        deltas: ``[n_rays, n_samples]`` section lengths.
-        camera_indices: ``[n_rays]`` long.
-    """
-
-    positions: torch.Tensor
-    directions: torch.Tensor
-    t_mid: torch.Tensor
-    deltas: torch.Tensor
-    camera_indices: torch.Tensor
+    positions: torch.Tensor  # [n_rays, n_samples, 3] at the section mid-points
+    directions: torch.Tensor  # [n_rays, 3] unit ray directions
+    t_mid: torch.Tensor  # [n_rays, n_samples] distances of the mid-points along the ray
+    deltas: torch.Tensor  # [n_rays, n_samples] section lengths
+    camera_indices: torch.Tensor  # [n_rays] long
 
     @staticmethod
     def from_edges(ray_bundle: RayBundle, t_edges: torch.Tensor) -> "RaySamples":
@@ -68,18 +53,13 @@ class RaySamples:
 
 def near_far_from_sphere(origins: torch.Tensor, directions: torch.Tensor, radius: float,
                          min_near: float = 0.0) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """Where rays enter and leave a sphere of ``radius`` at the origin.
-
-    Computed from the point of closest approach ``p = o + t_c d`` rather than the textbook
-    discriminant ``b^2 - 4ac``: for a camera far from the sphere the latter subtracts two huge, nearly
-    equal numbers and loses every digit in fp32 (a camera 10^4 radii away missed the sphere).
+    """Where rays enter and leave a sphere of ``radius`` at the origin, from the point of closest
+    approach (the textbook discriminant loses every digit in fp32 for a far camera).
 
     Args:
-        origins, directions: ``[n_rays, 3]``; directions need not be unit length. A zero-length
-            direction (below 1e-6) is a ray that goes nowhere: it misses.
+        origins, directions: ``[n_rays, 3]``; directions need not be unit length (zero length: a miss).
     Returns:
-        nears, fars ``[n_rays, 1]`` and ``hits [n_rays]`` (bool). Rays that miss get near = far, so
-        every sample interval on them has zero length and they render background.
+        nears, fars ``[n_rays, 1]`` and ``hits [n_rays]`` (bool); a miss gets near = far.
     """
     a = (directions * directions).sum(-1)
     usable = a > 1e-12
@@ -97,12 +77,9 @@ def near_far_from_sphere(origins: torch.Tensor, directions: torch.Tensor, radius
 
 
 def isotropic_rays(n_rays: int, radius: float, device: torch.device | str = "cpu") -> RayBundle:
-    """``n_rays`` novel-view rays (camera index -1) through a sphere of ``radius`` at the origin, uniform
-    over the lines that meet it: a direction uniform on the unit sphere, then a point uniform on the disk of
-    ``radius`` through the origin across that direction. The mean opacity of such rays is the object's
-    silhouette area averaged over all viewing directions, divided by the disk's area (for a convex body a
-    quarter of its surface area, by Cauchy's formula). Origins sit ``2 radius`` back from the disk, outside
-    the sphere."""
+    """``n_rays`` novel-view rays (camera index -1) uniform over the lines that meet a sphere of ``radius``
+    at the origin: a uniform direction, then a uniform point on the disk across it; origins sit
+    ``2 radius`` back, outside the sphere."""
     directions = torch.randn(n_rays, 3).to(device)
     directions = directions / directions.norm(dim=-1, keepdim=True).clamp_min(1e-6)
     # an axis not parallel to the direction, then two unit vectors across it

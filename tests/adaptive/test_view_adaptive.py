@@ -343,18 +343,6 @@ def test_the_wrapper_passes_only_named_queries_to_its_base(base, tiny_scene, tmp
         field.no_such_attribute
 
 
-def test_a_trained_backbone_state_starts_its_adaptive_model(tiny_scene, tmp_path):
-    from va_plugin.adaptive.field import backbone_state_in_wrapper
-
-    plain = tiny_config("neus", tiny_scene, tmp_path / "plain", steps=1).setup()
-    wrapped = _trainer("va-neus", tiny_scene, tmp_path / "va", steps=1)
-    target = wrapped.model.state_dict()
-    target.update(backbone_state_in_wrapper(plain.model.state_dict()))
-    wrapped.model.load_state_dict(target)
-    for key, value in plain.model.field.state_dict().items():
-        assert torch.equal(wrapped.model.field.base.state_dict()[key], value), key
-
-
 def test_the_regularizers_leave_the_shared_field_alone(tiny_scene, tmp_path):
     """L_entropy and L_consistency train the branches and the attention only (their gradient on the shared
     field can dissolve the surface at phase 3's start); the colour loss still trains the shared field."""

@@ -121,7 +121,7 @@ def test_levels_open_coarse_to_fine():
         field.update_step(step, 100)
         opened.append(field.encoding.n_active_levels)
     assert opened[0] >= 2 and opened == sorted(opened) and opened[-1] == 8
-    assert field.active_levels(50, 100) == 8 and field.active_levels(24, 100) < 8
+    assert field.config.active_levels(50, 100) == 8 and field.config.active_levels(24, 100) < 8
     x = _points(10)
     field.update_step(0, 100)
     encoded = field.encoding(x)

@@ -11,16 +11,15 @@ from torch import nn
 from va_plugin.errors import ConfigError
 
 LOGIT_BOUND = 50.0
-"""Attention logits are clamped to [-50, 50]: softmax is already exact to fp32 there, and an
-overflowing dot product can no longer produce inf - inf = NaN."""
+"""Attention logits are clamped to [-50, 50] (softmax is exact to fp32 there) so an overflow cannot
+produce inf - inf = NaN."""
 
 
 class ViewAttention(nn.Module):
     """``f_fused,i = f_i + W_o [sum_j alpha^h_ij v^h_j]_h`` for each sample, over its n view tokens.
 
-    The residual connection and the zero-initialised output projection are our choice (the paper's
-    eq. 12 has neither): switching fusion on in phase 3 then leaves the renders of phase 2 unchanged,
-    and training moves away from them only as far as the loss asks.
+    The residual connection and the zero-initialised output projection (not in the paper's eq. 12)
+    make phase 3 start from phase 2's renders.
 
     Args:
         feature_dim: token width D (the branch output).
@@ -54,9 +53,9 @@ def reference_attention(module: ViewAttention, tokens: torch.Tensor) -> Tuple[to
     h, dh = module.n_heads, module.head_dim
     w, b = module.qkv.weight, module.qkv.bias
     fused = torch.zeros_like(tokens)
-    alphas = torch.zeros(s, h, n, n, dtype=tokens.dtype)
+    alphas = torch.zeros(s, h, n, n, dtype=tokens.dtype, device=tokens.device)
     for si in range(s):
-        concat = torch.zeros(n, h * dh, dtype=tokens.dtype)
+        concat = torch.zeros(n, h * dh, dtype=tokens.dtype, device=tokens.device)
         for hi in range(h):
             rows = lambda part: slice(part * h * dh + hi * dh, part * h * dh + (hi + 1) * dh)  # noqa: E731
             q = [w[rows(0)] @ tokens[si, i] + b[rows(0)] for i in range(n)]

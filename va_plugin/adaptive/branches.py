@@ -1,8 +1,7 @@
 """Per-view MLP branches F_view,i (the paper's eq. 4), all views in one batched operation.
 
-Each branch is a residual MLP on the shared feature: ``f_i = f_shared + B_i(f_shared)``. The last layer
-starts at zero, so when the branches are switched on (phase 2) every view renders exactly what the
-pre-trained shared network rendered, and each branch only grows the correction its view needs.
+Each branch is residual, ``f_i = f_shared + B_i(f_shared)``, with its last layer at zero, so phase 2
+starts by rendering exactly what the shared network rendered.
 """
 
 from __future__ import annotations
@@ -61,11 +60,8 @@ class ViewBranches(nn.Module):
         return (x + self._mlp(x)).transpose(0, 1)
 
     def forward_own(self, features: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
-        """Only the branch of each sample's own view: ``[S, D], views [S] in [0, n) -> [S, D]``.
-
-        Samples are grouped by view into a padded ``[n_views, max_count, D]`` block so all branches
-        still run as one batched matmul, at about the cost of a single branch over all samples.
-        """
+        """Only the branch of each sample's own view: ``[S, D], views [S] in [0, n) -> [S, D]``, as one
+        batched matmul over samples grouped by view into a padded ``[n_views, max_count, D]`` block."""
         if features.shape[0] == 0:
             return features
         order = torch.argsort(views)

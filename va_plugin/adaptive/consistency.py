@@ -1,18 +1,9 @@
-"""Do the input views agree? A silhouette test that needs no training.
+"""Do the input views agree?
 
-With consistent views every foreground pixel of view i looks at a piece of the object, and that piece
-lies inside every other view's silhouette: somewhere along the pixel's ray there is a point that all
-the other masks contain. Generated views break this wherever their shape or pose drifts: the other
-silhouettes carve the pixel's ray empty. :func:`silhouette_support` counts, per view, the foreground
-pixels whose ray finds no such point (the "unsupported" fraction). It looks at the inputs alone, so a
-high-capacity field cannot fit the disagreement away before it is measured, and it is cheap.
-
-Every other mask can be dilated by ``tolerance_px`` pixels first (the masks are thresholded
-anti-aliased alpha and the projection is rounded to the nearest pixel); the test runs without
-tolerance, since even one pixel of it hides most of the disagreement the test is after.
-
-:func:`colour_cast` is the second test: per-view colour gains that make the views agree on the shared
-surface.
+:func:`silhouette_support`: with consistent views, every foreground pixel's ray holds a point that all
+other masks contain; per view, the share of foreground pixels whose ray holds none ("unsupported").
+It needs no training. :func:`colour_cast`: per-view colour gains that make the views agree on the
+shared surface.
 """
 
 from __future__ import annotations
@@ -61,12 +52,10 @@ what clean, consistent renders show)."""
 def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: float, samples: int = 192,
                        tolerance_px: int = 0, max_pixels: int = 4096,
                        threshold: float = DEFAULT_THRESHOLD) -> Optional[SilhouetteSupport]:
-    """The silhouette test of the module docstring on ``masks [n, H, W]`` (bool) seen by ``cameras``.
-
-    Each view's foreground is tested at up to ``max_pixels`` pixels spread evenly over it in scan order
-    (no random draw: the same inputs always give the same answer), each ray at ``samples`` points
-    evenly spaced where it crosses the sphere of ``scene_radius``. None with fewer than two views or
-    an empty mask (there is nothing to compare)."""
+    """The silhouette test on ``masks [n, H, W]`` (bool) seen by ``cameras``: up to ``max_pixels`` pixels
+    per view spread evenly (deterministic), ``samples`` points per ray inside the sphere of
+    ``scene_radius``, other masks dilated by ``tolerance_px``. None with fewer than two views or an
+    empty mask."""
     cameras = cameras.to(torch.device("cpu"))
     masks = masks.bool().cpu()
     n_views = len(cameras)
@@ -105,7 +94,6 @@ def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: floa
     return SilhouetteSupport(fractions, counts, threshold)
 
 
-
 @dataclass
 class ColourCast:
     """Per-view colour gains that make the training views agree on the shared surface (view 0 fixed at 1)."""
@@ -121,9 +109,8 @@ class ColourCast:
 
     @property
     def chroma(self) -> np.ndarray:
-        """``[n, 3]``: per view, the log gain of each channel minus the view's mean log gain (a
-        white-balance shift; a common brightness factor is left out, since the same surface seen from
-        another side is lit differently even in consistent renders)."""
+        """``[n, 3]``: per view, |log gain of each channel minus the view's mean log gain| (a white-balance
+        shift; brightness is left out, as lighting differs between sides)."""
         logs = self.log_gains
         return np.abs(logs - logs.mean(1, keepdims=True))
 
@@ -134,9 +121,8 @@ class ColourCast:
 
     @property
     def worst_shift(self) -> float:
-        """The chromatic deviation in colour units: :attr:`chroma` times the view's mean level of the
-        channel, so that a dark channel, whose gain the fit cannot pin down (a near-black hat: log gains
-        of 0.2), counts for as little as it shows."""
+        """The largest chromatic deviation in colour units: :attr:`chroma` times the view's mean level of
+        the channel, so a dark channel's ill-defined gain counts for little."""
         if not self.gains.size or self.levels is None:
             return self.worst
         return float(np.max(self.chroma * self.levels))
@@ -156,12 +142,10 @@ class ColourCast:
 @torch.no_grad()
 def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: Optional[np.ndarray] = None,
                 resolution: int = 64, max_gain: float = float("inf")) -> ColourCast:
-    """How far apart the views' colours are on the shared surface: the per-view gains of the texture
-    bake's harmonisation (:func:`va_plugin.export.fusion.harmonise`, every fit kept), fitted on the
-    vertices of a ``resolution``^3 marching-cubes mesh of ``model`` projected into every view
-    (``images [n, H, W, 3]`` composited, ``masks [n, H, W]`` bool or None). A colour cast is what a
-    generator gets wrong that no silhouette shows; a field with a view-independent colour cannot fit
-    it away either. Raises VAError when the model has no surface."""
+    """How far apart the views' colours are on the shared surface: the per-view gains of
+    :func:`va_plugin.export.fusion.harmonise` on the vertices of a ``resolution``^3 mesh of ``model``
+    projected into every view (``images [n, H, W, 3]`` composited, ``masks [n, H, W]`` bool or None).
+    Raises VAError when the model has no surface."""
     import time
 
     from va_plugin.data.scenes.raycast import smooth_vertex_normals

@@ -2,9 +2,8 @@
 
 - ``attention.png`` / ``attention.json``: the n x n attention matrix averaged over surface samples
   (row i: how much view i's fused feature draws on each view j).
-- ``inconsistency.png`` / ``inconsistency.json``: per training view, |render of view i with its own
-  branch - canonical render of view i|, i.e. where that input disagreed with the shared object. With a
-  benchmark scene (its clean renders next to the inputs) the maps are scored against the injected errors.
+- ``inconsistency.png`` / ``inconsistency.json``: per training view, |own-branch render - canonical
+  render|, scored against the injected errors on a benchmark scene.
 """
 
 from __future__ import annotations
@@ -22,8 +21,7 @@ from va_plugin.data.images import read_image, write_image
 from va_plugin.export.render import render_view
 
 MIN_FULL_SCALE = 1e-3
-"""The inconsistency picture's colour map spans 0 .. the 99.5th percentile of all views' maps (so small
-differences early in training stay visible), never less than this."""
+"""Smallest full scale of the inconsistency picture's colour map (0 .. the maps' 99.5th percentile)."""
 ERROR_THRESHOLD = 0.05
 """A pixel counts as perturbed when the input differs from its clean render by more than this (mean RGB)."""
 
@@ -125,12 +123,9 @@ def injected_error_maps(scene_dir: Path, size: tuple) -> Optional[List[np.ndarra
 
 def overlap_scores(predicted: np.ndarray, injected: np.ndarray, threshold: float = ERROR_THRESHOLD
                    ) -> Dict[str, Optional[float]]:
-    """How well an inconsistency map points at the injected errors.
-
-    ``precision_top10``: share of the map's top-10% pixels that were perturbed; ``chance``: the share
-    of perturbed pixels overall (what a random map scores); ``pearson``: correlation of the two maps
-    (None when either map is constant, e.g. for the clean view 0).
-    """
+    """How well an inconsistency map points at the injected errors: ``precision_top10`` (share of its
+    top-10% pixels that were perturbed), ``chance`` (share of perturbed pixels) and ``pearson`` (None
+    for a constant map)."""
     p, e = predicted.reshape(-1).astype(np.float64), injected.reshape(-1).astype(np.float64)
     perturbed = e > threshold
     k = max(1, int(round(0.1 * p.size)))

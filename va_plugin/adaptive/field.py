@@ -1,16 +1,12 @@
 """``ViewAdaptiveField``: the paper's view-adaptive renderer as a wrapper around any base field.
 
-The base field's colour path is split into f_shared (``color_features``) and ``decode_color``; the
-wrapper sits between the halves:
+The wrapper sits between the base field's ``color_features`` (f_shared) and ``decode_color``:
 
     f_shared --(branch i)--> f_i --(self-attention over i = 1..n)--> f_fused,i --decode--> RGB
 
-A ray from training view i renders with f_fused,i. Novel views, evaluation and mesh colours render
-with the *canonical* feature, f_shared itself (as cheap as the base field). Geometry is the base
-field's, shared by all views, so one surface exists to extract.
-
-The field knows nothing about training steps: it holds a phase flag (1 pre-training, 2 branches,
-3 fusion) that a trainer callback (``va_plugin.adaptive.phases``) sets.
+Training view i renders with f_fused,i; novel views, evaluation and mesh colours with f_shared (the
+*canonical* feature). Geometry is the base field's. A phase flag (1 pre-training, 2 branches,
+3 fusion) is set by a trainer callback (``va_plugin.adaptive.phases``).
 """
 
 from __future__ import annotations
@@ -62,14 +58,13 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     branch_fraction: float = 1.0 / 3.0
     """Share of the step budget in phase 2 (branches without fusion); phase 3 gets the rest."""
     shared_lr_scale: float = 1.0
-    """Learning-rate factor of the shared field in phases 2 and 3 (the paper: 0.1, after a converged
-    pre-training; at short budgets 0.1 freezes an unfinished shared field)."""
+    """Learning-rate factor of the shared field in phases 2 and 3 (the paper: 0.1)."""
     min_sample_weight: float = 1e-3
     """Samples whose rendering weight is at most this skip the branches and the attention and keep the
     shared colour (0: every sample takes the adaptive path)."""
     shared_colour_weight: float = 0.0
-    """Weight of a second colour loss in phases 2-3: the shared path's render of the same training rays
-    (what novel views and mesh colours use) against the inputs. 0: the paper's loss alone."""
+    """Weight of a second colour loss in phases 2-3: the shared path's render of the training rays against
+    the inputs. 0: the paper's loss alone."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray are fused; its other
     visible samples take their own view's branch (0: every visible sample is fused)."""
@@ -119,10 +114,8 @@ class ViewAdaptiveField(Field):
         self.geometry_kind = self.base.geometry_kind
         self.feature_dim = self.base.feature_dim
         d = self.feature_dim
-        # The adaptive modules draw their initial weights from a stream of their own (derived from the
-        # run's seed), so the global random stream (the base field above, then every training batch) is
-        # the wrapped method's: phase 1 trains exactly what the plain backbone trains, whichever
-        # components are switched on, and paired comparisons see the components' effect, not a reshuffle.
+        # The adaptive modules draw from a stream of their own, so the global stream is the wrapped
+        # method's: phase 1 trains exactly what the plain backbone trains.
         with torch.random.fork_rng(devices=[]):
             torch.manual_seed((torch.initial_seed() + ADAPTIVE_SEED_OFFSET) % 2 ** 63)
             self.branches = ViewBranches(num_train_views, d, config.branch_width, config.branch_layers) \
@@ -175,9 +168,7 @@ class ViewAdaptiveField(Field):
         return self.base.decode_color(features)
 
     BASE_PASSTHROUGH = frozenset({"geometry_and_gradient", "sdf", "density", "bound"})
-    """The base field's backbone-specific queries the wrapper answers too (NeuS's analytic SDF gradient,
-    NGP's bound check), when the base field has them: ``hasattr(wrapper, name)`` is ``hasattr(base, name)``
-    for these names and false for any other name the wrapper lacks."""
+    """The base field's backbone-specific queries the wrapper passes on (when the base field has them)."""
 
     def __getattr__(self, name: str):
         try:
@@ -189,21 +180,14 @@ class ViewAdaptiveField(Field):
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
               weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
-        """RGB ``[..., 3]`` of samples; training rays (``camera_indices >= 0``) use their view's
-        f_fused,i, novel-view rays (-1) the canonical feature f_shared. While fusion trains, the per-sample
-        regularizers ``va_entropy`` and ``va_consistency`` (``[...]``) come along, with the attention of
-        the samples that went through it (``va_attention``, ``[A, n, n]``, and their rendering weights
-        ``va_attention_weights`` ``[A]`` when known) for :meth:`extra_losses`.
+        """RGB ``[..., 3]`` of samples: training rays (``camera_indices >= 0``) use their view's
+        f_fused,i, novel-view rays (-1) f_shared. While fusion trains, the per-sample regularizers
+        ``va_entropy`` and ``va_consistency`` (``[...]``) come along, with the attention ``va_attention``
+        ``[A, n, n]`` and its samples' weights ``va_attention_weights`` ``[A]`` for :meth:`extra_losses`.
 
-        Given the samples' rendering ``weights``, only samples weighing more than
-        ``min_sample_weight`` go through the branches and the attention; the others (empty space,
-        occluded points: most samples of a ray) keep the shared colour and contribute nothing to the
-        regularizers. In the fusion phase, ``ray_indices`` (the ray of each sample) let
-        ``fused_samples_per_ray`` fuse only each ray's heaviest samples, in training and when a
-        training view is rendered afterwards (diagnostics), so such a render shows what trained.
-
-        With ``also_canonical`` set (the diagnostics do), ``rgb_canonical`` comes along: the canonical
-        colour of the same samples, so one render pass gives both a view's own and its canonical image."""
+        Given rendering ``weights``, only samples heavier than ``min_sample_weight`` take the adaptive
+        path; with ``ray_indices``, ``fused_samples_per_ray`` fuses only each ray's heaviest samples.
+        With ``also_canonical`` set, ``rgb_canonical`` (the same samples' canonical colour) comes along."""
         shared = self.base.color_features(positions, directions, normals, geo_features)
         mode = self._mode()
         if not mode.branches:
@@ -288,8 +272,8 @@ class ViewAdaptiveField(Field):
         out = {"rgb": self.base.decode_color(feature)}
         if mode.fusion and mode.training:
             if cfg.entropy_weight > 0 or cfg.consistency_weight > 0:
-                # the regularizers train the branches and the attention only: a second pass on f_shared
-                # detached, since their gradient on the shared field can dissolve the surface
+                # a second pass on f_shared detached: the regularizers' gradient on the shared field
+                # can dissolve the surface
                 reg_tokens, reg_alpha = self.attention(self.branches.forward_all(flat.detach()))
                 if cfg.entropy_weight > 0:
                     out["va_entropy"] = attention_entropy(reg_alpha)
@@ -326,9 +310,8 @@ class ViewAdaptiveField(Field):
     @torch.no_grad()
     def _accumulate_attention(self, alpha: torch.Tensor, sample_weights: Optional[torch.Tensor],
                               weights: Optional[torch.Tensor]) -> None:
-        """Running sum of the attention matrix ``alpha [A, n, n]`` over training samples, weighted by
-        rendering weight (so it reflects samples on the surface, not in empty space): the samples' own
-        ``sample_weights [A]``, else the batch's ``weights`` when they are per sample of the same samples."""
+        """Running sum of the attention ``alpha [A, n, n]`` over training samples, weighted by rendering
+        weight (``sample_weights [A]``, else the batch's ``weights`` when they match)."""
         if sample_weights is None and weights is not None and weights.numel() == alpha.shape[0]:
             sample_weights = weights.detach().reshape(-1)
         w = torch.ones_like(alpha[:, 0, 0]) if sample_weights is None else sample_weights.to(alpha.dtype)
@@ -364,13 +347,6 @@ class ViewAdaptiveField(Field):
         if self.fusion_active():
             out["fused_share"] = round(self.fused_share, 4)
         return out
-
-
-def backbone_state_in_wrapper(model_state: Dict[str, torch.Tensor]) -> Dict[str, torch.Tensor]:
-    """A backbone model's state dict in the layout of its view-adaptive model, whose field holds the
-    backbone's field under ``field.base`` (to start an adaptive model from a trained backbone)."""
-    return {("field.base." + key[len("field."):] if key.startswith("field.") else key): value
-            for key, value in model_state.items()}
 
 
 @dataclass(frozen=True)
@@ -422,11 +398,9 @@ def flat_views(camera_indices: Optional[torch.Tensor], n_samples: int, device: t
 
 def route_samples(weights: torch.Tensor, views: torch.Tensor, ray_indices: Optional[torch.Tensor],
                   mode: ColorMode) -> SampleRoutes:
-    """Where each sample ``[S]`` goes, from its rendering weight, its view and its ray: samples heavier than
-    ``min_sample_weight`` take the adaptive path (only training views' samples: a novel view's canonical
-    colour is the shared one); in the fusion phase with ``fused_samples_per_ray``
-    k > 0 and known rays, only each ray's k heaviest are fused and the ray's other visible samples of a
-    training view take their own branch."""
+    """Where each sample ``[S]`` goes: training-view samples heavier than ``min_sample_weight`` take the
+    adaptive path; with ``fused_samples_per_ray`` k > 0 and known rays, only each ray's k heaviest are
+    fused and its other visible samples take their own branch."""
     active = (weights > mode.min_sample_weight) & (views >= 0)
     own_only = None
     if mode.fused_samples_per_ray > 0 and ray_indices is not None:
@@ -438,17 +412,15 @@ def route_samples(weights: torch.Tensor, views: torch.Tensor, ray_indices: Optio
 
 
 def with_canonical(out: Dict[str, torch.Tensor], mode: ColorMode) -> Dict[str, torch.Tensor]:
-    """``out`` with ``rgb_canonical`` when the query wants it and the path gave none: there the
-    colour is the canonical one."""
+    """``out`` with ``rgb_canonical`` (= ``rgb``) when the query wants it and the path gave none."""
     if mode.also_canonical and "rgb_canonical" not in out:
         out["rgb_canonical"] = out["rgb"]
     return out
 
 
 def heaviest_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor, k: int) -> torch.Tensor:
-    """Which samples are among the ``k`` heaviest of their ray: ``weights [S], ray_indices [S] -> bool [S]``.
-
-    Samples may come in any order and rays with any number of samples; ties go to the earlier sample."""
+    """Which samples (in any order) are among the ``k`` heaviest of their ray: ``weights [S], ray_indices
+    [S] -> bool [S]``; ties go to the earlier sample."""
     if weights.numel() == 0:
         return torch.zeros_like(weights, dtype=torch.bool)
     if k == 1:
@@ -466,9 +438,8 @@ def heaviest_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor, k: int) -
 
 
 def _heaviest_one_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor) -> torch.Tensor:
-    """:func:`heaviest_per_ray` for ``k = 1`` (the default ``fused_samples_per_ray``) by two scatter
-    reductions instead of two sorts: each ray's largest weight, then the first sample of the ray that
-    carries it."""
+    """:func:`heaviest_per_ray` for ``k = 1`` by two scatter reductions: each ray's largest weight, then
+    the first sample of the ray that carries it."""
     rays = ray_indices.long()
     n_rays = int(rays.max()) + 1
     top = weights.new_full((n_rays,), -torch.inf).scatter_reduce(0, rays, weights, "amax")

@@ -7,16 +7,12 @@ from typing import Optional
 import torch
 
 ALPHA_FLOOR = 1e-8
-"""alpha log alpha is evaluated as alpha * log(max(alpha, 1e-8)): its value at alpha = 0 is 0 (the
-limit) and its gradient stays finite, where log(0) would give -inf and then NaN."""
+"""alpha log alpha is evaluated as alpha * log(max(alpha, 1e-8)): 0 at alpha = 0, with a finite gradient."""
 
 
 def attention_entropy(alpha: torch.Tensor) -> torch.Tensor:
-    """``sum_i sum_j alpha_ij log alpha_ij``, averaged over heads: ``[S, H, n, n] -> [S]``.
-
-    At most 0 (every row one-hot); its minimum, ``-n log n``, is reached by uniform rows, so
-    minimising it spreads attention (eq. 8).
-    """
+    """``sum_i sum_j alpha_ij log alpha_ij``, averaged over heads: ``[S, H, n, n] -> [S]``; from 0 (rows
+    one-hot) down to ``-n log n`` (uniform rows), so minimising it spreads attention (eq. 8)."""
     return (alpha * torch.log(alpha.clamp_min(ALPHA_FLOOR))).sum((-1, -2)).mean(-1)
 
 

@@ -1,14 +1,9 @@
 """The three training phases of the paper's Sec. 3.4, switched by a trainer callback.
 
-Phase 1 trains the shared field alone; phase 2 adds the per-view branches at the full learning rate
-while the shared field goes on at ``shared_lr_scale`` of its own (1.0 by default; the paper's 0.1);
-phase 3 switches the attention fusion on. Phase boundaries are fractions of the step budget, so the
-phase of a step is a pure function of (step, budget): a resumed run lands in the same phase without
-extra state.
-
-At the end of phase 1 the callback can test whether the inputs disagree at all (silhouette support and
-colour cast) and, if they do not, keep the run in phase 1: "skip what a scene doesn't need". The per-view
-residuals of :func:`view_residuals` are recorded beside that decision.
+Phase 1 trains the shared field alone; phase 2 adds the per-view branches (the shared field at
+``shared_lr_scale``); phase 3 the attention fusion. Boundaries are fractions of the step budget, so a
+resumed run lands in the same phase. At the end of phase 1 the callback can test whether the inputs
+disagree (silhouette support and colour cast) and, if not, keep the run in phase 1.
 """
 
 from __future__ import annotations
@@ -49,17 +44,12 @@ def phase_at(step: int, max_steps: int, pretrain_fraction: float, branch_fractio
 @torch.no_grad()
 def view_residuals(pipeline, max_pixels: int = 4096, total_pixels: int = 16384,
                    foreground_pixels: int = 4096) -> List[Dict[str, float]]:
-    """How well the shared (canonical) field explains each training input.
+    """How well the shared (canonical) field explains each training input: per view, the PSNR over the
+    rendered pixels and, with masks, over their foreground.
 
-    With foreground masks, renders ``foreground_pixels`` pixels in all, shared out over the views and
-    spread evenly over each view's foreground (the test reads the foreground PSNR, so background rays,
-    most of an object-centred image, would cost time and tell nothing). Without masks, or for a view
-    whose mask is empty, renders up to ``max_pixels`` pixels of the view, at most ``total_pixels`` over
-    all views, on an even stride over the image. Either way the check costs about the same at 16 views
-    as at 4, touches no random generator (a resumed run decides the same), and renders with the
-    canonical path (``foreground_pixels=0``: the stride even with masks). Returns per view the PSNR
-    against the input over the rendered pixels and, with masks, over their foreground (then the same
-    pixels).
+    With masks, ``foreground_pixels`` in all are spread evenly over the views' foregrounds; without
+    (or with ``foreground_pixels=0`` or an empty mask), up to ``max_pixels`` per view and
+    ``total_pixels`` in all on an even stride. No random draw: a resumed run decides the same.
     """
     dm = pipeline.datamanager
     height, width = dm.images.shape[1:3]
@@ -147,9 +137,8 @@ def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
 
 
 def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttributes, step: int) -> bool:
-    """Measure the silhouette support and the colour cast once, record them with the per-view residuals
-    (for the logs and reports: a field can fit a disagreement away, so they do not vote), and say whether
-    to skip the adaptive phases: only when the silhouettes and the colours say the inputs agree."""
+    """Measure the silhouette support and the colour cast, record them with the per-view residuals (which
+    do not vote), and say whether to skip the adaptive phases (when the inputs agree)."""
     residuals = view_residuals(attributes.pipeline)
     support = input_silhouette_support(attributes.pipeline.datamanager)
     cast = input_colour_cast(attributes.pipeline, field.config.consistent_colour_cast)
@@ -177,9 +166,8 @@ def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttribu
 
 
 def input_colour_cast(pipeline, threshold: float):
-    """:func:`colour_cast` of the shared field on the training views; None when the test is off
-    (``threshold`` 0), with fewer than two views, when the field has no surface yet, or when no surface
-    point is seen by two views (then the other tests decide)."""
+    """:func:`colour_cast` of the shared field on the training views; None when the test is off, with
+    fewer than two views, or when no surface (point seen by two views) exists yet."""
     from va_plugin.errors import VAError
     from va_plugin.export.texture import run_views
 

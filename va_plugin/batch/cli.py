@@ -1,7 +1,6 @@
 """``va-batch INPUTS --method METHOD --out OUT``: reconstruct every object of a folder, one job per object.
 
-Exit status: 0 when every object finished, 1 when any failed (each failure is one line in the manifest
-and the summary), 2 for a bad command (unknown method, option, missing INPUTS, ...), 130 on Ctrl-C.
+Exit status: 0 when every object finished, 1 when any failed, 2 for a bad command, 130 on Ctrl-C.
 """
 
 from __future__ import annotations

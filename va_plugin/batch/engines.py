@@ -1,15 +1,11 @@
 """Who runs a batch's jobs. Both engines run the same function, :func:`va_plugin.batch.job.run_object`,
 and hand each finished record to ``on_done`` in the main process, which alone writes the manifest.
 
-- ``local`` (embedded): with one worker the jobs run one after another in this process; with N a pool of
-  N ``spawn`` worker processes (nothing of this process's torch state is forked), each job setting its
-  own torch threads. Workers ignore Ctrl-C (this process stops them) and end themselves when this process
-  is gone, so a killed batch leaves nothing running that a resumed batch would meet in its run folders.
-  A worker that dies (out of memory, killed) fails the objects it and its neighbours were running (the
-  pool cannot tell them apart); the other objects go on in a fresh pool.
+- ``local``: one worker runs the jobs in this process; N run them in a pool of N ``spawn`` processes
+  that ignore Ctrl-C and end themselves when this process is gone. A worker that dies fails the objects
+  in flight (the pool cannot tell them apart); the others go on in a fresh pool.
 - ``ray``: one Ray task per object with ``num_cpus`` = threads per job (and ``num_gpus`` when asked);
-  ``address`` joins a running cluster (``auto``: the one this machine belongs to), none starts a local
-  instance with ``workers x threads`` CPUs for the batch's duration, its workers at normal priority.
+  ``address`` joins a running cluster, none starts a local instance with ``workers x threads`` CPUs.
 """
 
 from __future__ import annotations
@@ -130,8 +126,7 @@ def run_ray(jobs: Sequence[ObjectJob], on_done: OnDone, address: Optional[str] =
     if address:
         ray.init(address=address, **options)
     else:
-        # Ray runs its workers at niceness 15: on a busy machine they then wait behind every other process
-        # (a training 13x slower than the local engine's); a batch's jobs are the work, not background
+        # Ray's default worker niceness (15) starves the jobs on a busy machine
         ray.init(num_cpus=workers * threads, num_gpus=None if gpus else 0,
                  _system_config={"worker_niceness": 0}, **options)
     pending: Dict[Any, ObjectJob] = {}

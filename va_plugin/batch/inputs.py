@@ -1,12 +1,10 @@
 """Which objects a batch holds: the generator outputs and scene folders below a folder, or those a text
 file lists, each with a unique name (its run folder's name).
 
-Below a folder, an object is an image file (a SyncDreamer strip, a Zero123++ grid, ...) or a folder that a
-dataparser reads as a whole (a scene folder with ``transforms.json``, a Wonder3D output folder); other
-folders are searched, hidden ones and other files are passed over. An image that fits no format is still an
-object: its job fails with the dataparser's one-line error, and the batch goes on. A list file names one
-path per line (relative to the file's folder; blank lines and lines starting with ``#`` are skipped); a
-listed path that does not exist is an object whose job fails the same way.
+Below a folder, an object is an image file or a folder a dataparser reads as a whole (a scene folder, a
+Wonder3D output); other folders are searched, hidden ones skipped. An image that fits no format is still
+an object (its job fails, the batch goes on). A list file names one path per line, relative to the file's
+folder (blank lines and ``#`` lines skipped).
 """
 
 from __future__ import annotations

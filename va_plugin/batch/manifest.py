@@ -1,10 +1,8 @@
 """A batch's state on disk: ``OUT/batch.json`` (the settings every object is run with) and
 ``OUT/manifest.jsonl`` (one JSON line per finished object, ok or failed).
 
-The manifest is rewritten whole after each object, into a temporary file that is synced and then renamed
-over the old one, so at any moment it holds every object finished so far and no half line. ``--resume``
-reads it and runs only the objects it lacks (and, with ``--retry-failed``, those that failed); a batch
-folder is resumed only with the settings it was started with.
+The manifest is rewritten atomically after each object. ``--resume`` runs only the objects it lacks (and,
+with ``--retry-failed``, those that failed), and only with the settings the batch was started with.
 """
 
 from __future__ import annotations

@@ -1,9 +1,7 @@
 """The command line shared by the benchmark scripts, the loop over rows, progress and the summary.
 
-A script describes an :class:`Experiment`: how to plan its rows from the preset and the flags, and how
-to write its report from the finished rows. :func:`main` does the rest: scenes into the cache, each row
-trained and evaluated (or skipped with ``--resume`` when it finished before), reports rewritten after
-every row so that partial results are readable, and a summary at the end.
+A script describes an :class:`Experiment` (how to plan its rows and write its report); :func:`main` does
+the rest, rewriting the reports after every row.
 """
 
 from __future__ import annotations
@@ -165,9 +163,8 @@ def duration(seconds: float) -> str:
 
 
 class Progress:
-    """Elapsed time and an estimate of the rest: the seconds per training step of the rows run so far
-    (evaluation and scene building included) times the steps left (less what the running rows have done),
-    divided by the rows that run at once."""
+    """Elapsed time and an estimate of the rest: seconds per step so far times the steps left, divided by
+    the rows that run at once."""
 
     def __init__(self, budgets: Sequence[int], jobs: int = 1) -> None:
         self.started = time.perf_counter()
@@ -241,12 +238,9 @@ def jobs_and_threads(args: argparse.Namespace) -> tuple:
 
 
 class ExperimentRun:
-    """One run of an experiment: its rows, where they are stored, the progress and the reports.
-
-    The rows run one after another in this process (:meth:`run_sequentially`) or ``jobs`` at a time in
-    worker processes (:meth:`run_in_workers`); either way each row goes through :meth:`prepare` (scene,
-    config, fingerprint; a row finished earlier is taken from the store), :meth:`start` and
-    :meth:`finish` (stored, reported), and training is :func:`~va_plugin.bench.rows.run_row`."""
+    """One run of an experiment: its rows, their store, the progress and the reports. Rows run in this
+    process or ``jobs`` at a time in workers; each goes through :meth:`prepare` (scene, config,
+    fingerprint; or the stored row), :meth:`start` and :meth:`finish`."""
 
     def __init__(self, experiment: Experiment, args: argparse.Namespace, command: str) -> None:
         self.experiment, self.args = experiment, args

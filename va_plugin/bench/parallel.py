@@ -1,18 +1,12 @@
 """Benchmark rows in worker processes (``--jobs N``): up to N rows train and evaluate at the same time.
 
-N worker processes of the ``spawn`` start method (nothing of the main process's torch state is forked),
-each with ``torch.set_num_threads(threads)``, take one row at a time through a pipe and send back the
-finished row, or the exception it raised. A worker serves several rows in turn, as the one process of the
-sequential path does, so its start-up (imports, evaluation models) is paid once. The main process hands
-out rows in plan order whenever a worker is free, so N rows train at once until the last ones and the two
-rows of a pair start together or one row apart. Scenes, configs and fingerprints are made in the main
-process before any row starts, and only the main process writes the result store and the reports
-(through ``on_done``).
+N ``spawn`` workers, each with ``torch.set_num_threads(threads)``, take one row at a time through a pipe
+and send back the finished row or its exception; a worker serves several rows, so its start-up is paid
+once. Rows are handed out in plan order; only the main process writes the result store and reports.
 
-An interrupt makes every running row save a checkpoint and stop, as in the sequential path: Ctrl-C in a
-terminal reaches the workers too, and the main process passes it on in any case. A worker acts on the
-first interrupt of a row only (a second cannot cut its checkpoint short) and ignores interrupts between
-rows; a row handed out just before the interrupt sees the ``stopping`` event and does not start.
+An interrupt makes every running row save a checkpoint and stop. A worker acts on the first interrupt of
+a row only (a second cannot cut its checkpoint short) and ignores interrupts between rows; a row handed
+out just before sees the ``stopping`` event and does not start.
 """
 
 from __future__ import annotations
@@ -111,9 +105,8 @@ class _Worker:
         self.conn, child = context.Pipe()
         self.process = context.Process(target=_serve, args=(child, stopping, threads), daemon=True,
                                        name=f"bench-worker-{number}")
-        # started with SIGINT blocked (the mask survives exec), so that an interrupt while it imports does not
-        # kill it; _serve ignores SIGINT and unblocks it, _run turns it on for each row. Here a SIGINT that
-        # comes meanwhile waits until the mask is restored.
+        # started with SIGINT blocked (the mask survives exec) so an interrupt during its imports cannot
+        # kill it; _serve unblocks it and _run turns it on for each row.
         blocked = signal.pthread_sigmask(signal.SIG_BLOCK, {signal.SIGINT})
         try:
             self.process.start()
@@ -150,10 +143,9 @@ class _Worker:
 def run_in_processes(tasks: Sequence[RowTask], jobs: int, threads: int, on_start: Callable[[RowTask], None],
                      on_done: Callable[[RowTask, Dict[str, Any]], None],
                      on_error: Callable[[RowTask], None]) -> None:
-    """Run ``tasks`` in up to ``jobs`` processes at once, calling in the main process ``on_start`` when a row
-    is handed out and ``on_done`` with each finished row. A row that raised is passed to ``on_error``, the
-    other running rows are stopped, and its exception is raised here; an interrupt raises KeyboardInterrupt
-    once the running rows have stopped (a row that finished meanwhile still goes to ``on_done``)."""
+    """Run ``tasks`` in up to ``jobs`` processes, calling ``on_start`` when a row is handed out and
+    ``on_done`` with each finished row. A row that raised goes to ``on_error``, the others are stopped and
+    its exception is raised here; an interrupt raises KeyboardInterrupt once the running rows stopped."""
     if not tasks:
         return
     context = get_context("spawn")

@@ -1,9 +1,7 @@
 """Benchmark presets: which scenes, how long each run trains, and how it is evaluated.
 
-``smoke`` checks the plumbing in well under two minutes (the test suite runs it); ``quick`` gives a first
-paired comparison on three level-2 scenes (within twenty minutes on 2 idle CPU cores); ``full`` is the
-protocol of the paper's Sec. 4.1 as far as this machine allows: every procedural object and every
-Google Scanned Object under ``--data-root``, with each method's default step budget.
+``smoke`` checks the plumbing (the test suite runs it); ``quick`` gives a first paired comparison on three
+level-2 scenes; ``gso10`` and ``full`` follow the paper's Sec. 4.1 with each method's default budget.
 """
 
 from __future__ import annotations
@@ -83,7 +81,7 @@ PRESETS: Dict[str, BenchPreset] = {
     "quick": BenchPreset(
         name="quick",
         description="three level-2 procedural scenes at 256 px, each method's 'fast' preset "
-                    "(target 20 minutes on 2 idle cores; Table 1 with --jobs 2: 9 minutes)",
+                    "(target 20 minutes on 2 idle cores)",
         scenes=("mug", "knot", "chair"), axis_scenes=("mug",), method_preset="fast",
         evaluation=EvalSettings(image_scale=0.25, max_views=4, mesh_resolution=96, n_samples=100_000),
         curve_points=3),
@@ -93,7 +91,7 @@ PRESETS: Dict[str, BenchPreset] = {
                     "budget, every held-out view at full size, the final state only (benchmarks/run_backbone.py; hours)",
         scenes=("gso",), axis_scenes=("gso",),
         evaluation=EvalSettings(image_scale=1.0, max_views=None, mesh_resolution=128, n_samples=100_000),
-        # scoring 12 views at 256 px costs about as much as training on CPU: only the final state
+        # scoring 12 views at 256 px costs about as much as training: only the final state
         curve_points=1),
     "full": BenchPreset(
         name="full",

@@ -20,7 +20,7 @@ from va_plugin.bench.store import _finite_or_none
 
 FIELDS = ("scene", "method", "backbone", "adaptive", "psnr", "ssim", "lpips", "cd", "iou", "fscore",
           "train_seconds", "steps")
-"""The columns every row has (the issue's list)."""
+"""The columns every row has."""
 EXTRA_FIELDS = ("variant", "level", "views", "seed", "adaptive_ran", "input_psnr", "input_rmse", "eval_seconds")
 """Further columns: the row's label, the scene's settings and measured input error, evaluation time."""
 
@@ -313,11 +313,7 @@ def plot_time_curves(rows: Sequence[Dict[str, Any]], path: Path, title: str) -> 
     for ax in axes:
         ax.grid(alpha=0.3)
     axes[1].legend(fontsize=8)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, title)
 
 
 def plot_against(rows: Sequence[Dict[str, Any]], x_key: str, metrics: Sequence[str], path: Path, title: str,
@@ -346,11 +342,7 @@ def plot_against(rows: Sequence[Dict[str, Any]], x_key: str, metrics: Sequence[s
         ax.set(xlabel=xlabel, ylabel=METRIC_TITLES.get(metric, metric), title=METRIC_TITLES.get(metric, metric))
         ax.grid(alpha=0.3)
     axes[0][-1].legend(fontsize=8)
-    fig.suptitle(title, fontsize=10)
-    fig.tight_layout()
-    fig.savefig(path, dpi=110)
-    plt.close(fig)
-    return path
+    return _save(plt, fig, path, title)
 
 
 def plot_stacked_bars(parts: Dict[str, Dict[str, float]], path: Path, title: str, xlabel: str) -> Optional[Path]:
@@ -373,8 +365,15 @@ def plot_stacked_bars(parts: Dict[str, Dict[str, float]], path: Path, title: str
     ax.set(xlabel=xlabel, title=title)
     ax.grid(axis="x", alpha=0.3)
     ax.legend(fontsize=8, ncol=min(len(names), 5), loc="upper center", bbox_to_anchor=(0.5, -0.25 - 0.1 / len(labels)))
+    return _save(plt, fig, path, bbox_inches="tight")
+
+
+def _save(plt, fig, path: Path, title: Optional[str] = None, **savefig: Any) -> Path:
+    """Finish a figure: its title, tight layout, written to ``path`` at 110 dpi, closed."""
+    if title is not None:
+        fig.suptitle(title, fontsize=10)
     fig.tight_layout()
-    fig.savefig(path, dpi=110, bbox_inches="tight")
+    fig.savefig(path, dpi=110, **savefig)
     plt.close(fig)
     return path
 

@@ -1,15 +1,9 @@
 """One benchmark row: one method trained on one scene, then evaluated, all through the library.
 
-The config comes from the registry (``get_method(method).make_config(preset)``), overrides go through
-:func:`va_plugin.config.apply_override`, training is ``config.setup().train()`` and evaluation is
-:func:`va_plugin.eval.evaluate.evaluate_run`, the function behind ``va-eval``. The original and the
-view-adaptive method of a backbone get the same scene folder, seed, step budget and overrides: the only
-difference between a pair is the field wrapper (and the adaptive method's own optimizer group).
-
-Checkpoints are written every ``max_steps // curve_points`` steps; after training each one is evaluated,
-which gives error against training seconds along the run (checkpoint writing and evaluation are outside
-the trainer's clock). Only the last checkpoint is kept. A row interrupted during training continues from
-its newest checkpoint when rerun with the same settings.
+The config comes from the registry, training is :func:`train_run`, evaluation
+:func:`va_plugin.eval.evaluate.evaluate_run` (``va-eval``). Both methods of a pair get the same scene,
+seed, step budget and overrides. Checkpoints every ``max_steps // curve_points`` steps are evaluated after
+training (error against training seconds); only the last is kept. An interrupted row resumes.
 """
 
 from __future__ import annotations
@@ -37,8 +31,7 @@ ROW_FILE = "bench_row.json"
 """In a row's run folder: the row's key and settings fingerprint (a rerun resumes only a matching run)."""
 
 ADAPTIVE_OVERRIDES = ("pipeline.model.field.diagnostics_scale=0",)
-"""The diagnostics pictures are written after the last step, inside the trainer's clock; a benchmark row
-measures training time, so they are off (``va-export diagnostics`` writes them for any run)."""
+"""The diagnostics pictures would count in the trainer's clock, so benchmark rows turn them off."""
 
 METRICS = ("psnr", "ssim", "lpips", "cd", "iou", "fscore")
 

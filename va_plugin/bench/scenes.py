@@ -1,10 +1,8 @@
 """Scenes of a benchmark: names on the command line, and the scene cache under ``--out``.
 
-A scene name is ``NAME`` or ``procedural:NAME`` (a procedural object), ``gso:NAME`` (a Google Scanned
-Object under ``--data-root``), ``mesh:PATH`` (a textured mesh file), or one of the groups ``procedural``
-(all procedural objects) and ``gso`` (all GSO objects found). Scenes are built once by the scene builder
-into ``CACHE/<name>-l<level>-v<views>-r<resolution>-s<seed>`` and reused; a build goes to a temporary
-folder first, so an interrupted build never leaves a half-written scene behind.
+A scene name is ``NAME`` or ``procedural:NAME``, ``gso:NAME`` (under ``--data-root``), ``mesh:PATH``, or
+a group, ``procedural`` or ``gso``. Scenes are built once into
+``CACHE/<name>-l<level>-v<views>-r<resolution>-s<seed>`` (through a temporary folder) and reused.
 """
 
 from __future__ import annotations
@@ -38,16 +36,14 @@ class SceneSpec:
 
     @property
     def kinds_suffix(self) -> str:
-        """Empty for all kinds, else ``+kind+kind`` (``+none`` for no kind): names and folders of scenes
-        with fewer kinds differ from the usual ones, so rows and caches never mix."""
+        """Empty for all kinds, else ``+kind+kind`` (``+none`` for no kind), so rows and caches never mix."""
         if tuple(self.kinds) == KINDS:
             return ""
         return "+" + "+".join(self.kinds or ("none",))
 
     @property
     def name(self) -> str:
-        """Short name for tables: the object's name (``gso-`` in front for GSO objects), plus the kinds
-        when not all of them are injected."""
+        """Short name for tables: the object's name (``gso-`` in front for GSO objects) + kinds suffix."""
         kind, _, rest = self.source.partition(":")
         if kind == "procedural":
             base = rest
@@ -115,13 +111,9 @@ def ensure_scene(spec: SceneSpec, cache: Path, data_root: Optional[Path]) -> Pat
 
 
 def input_error(scene_dir: Path) -> dict:
-    """The measured size of a scene's injected errors, from its ``scene.json``.
-
-    ``input_psnr``: mean PSNR (dB) of the perturbed inputs against their clean renders (the builder's
-    figure; 100 dB, its cap, at level 0). ``input_rmse``: the mean over *all* input views of the RMS
-    colour error, sqrt(MSE) = 10^(-PSNR/20), so the clean view 0 counts as 0: the (1/n) sum ||delta_i||
-    of the paper's Lemma 1, with images standing in for the projections.
-    """
+    """The size of a scene's injected errors, from its ``scene.json``: ``input_psnr``, the mean PSNR (dB)
+    of the perturbed inputs against their clean renders (100 at level 0), and ``input_rmse``, the mean
+    over all input views of 10^(-PSNR/20) (clean views count 0: the paper's Lemma 1 (1/n) sum ||delta_i||)."""
     info = json.loads((Path(scene_dir) / SCENE_FILE).read_text())
     inconsistency = info["inconsistency"]
     per_view: Sequence[dict] = inconsistency["per_view"]

@@ -1,8 +1,7 @@
 """Finished benchmark rows on disk: ``OUT/rows.jsonl``, one JSON line per row, appended when a row ends.
 
-A line is written and flushed to disk in one go, so an interrupted benchmark loses at most the row in
-flight. ``--resume`` reads the file and skips every planned row whose key and settings fingerprint
-match a stored line (a row whose settings changed runs again; its new line supersedes the old one).
+A line is flushed to disk in one go. ``--resume`` skips every planned row whose key and settings
+fingerprint match a stored line (a row whose settings changed runs again).
 """
 
 from __future__ import annotations

@@ -21,9 +21,7 @@ from va_plugin.registry import discover_methods
 
 
 DEMO_STEPS: dict = {"neus": 1000}
-"""The demo's step budget per method where it differs from the method's own: ``neus`` trains 1000 of its
-2000 default steps, so that the demo stays near 2.5 minutes on 2 cores (a full default run takes about
-twice that; the positional-encoding ``neus`` once needed a cut to 350 of its 500)."""
+"""The demo's step budget per method where it differs from the method's own (a short demo)."""
 
 
 def build_parser() -> argparse.ArgumentParser:

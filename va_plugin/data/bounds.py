@@ -1,6 +1,5 @@
-"""Does the object fit in the scene's bounding sphere? Every model samples only inside it, so an
-object that sticks out would be cut off without a word; we refuse such inputs instead. An object that
-the image frame cuts off is allowed, with a warning: what lies outside every frame is seen by no view."""
+"""Does the object fit in the scene's bounding sphere (where every model samples)? Inputs that stick out
+are refused; an object the image frame cuts off is allowed, with a warning."""
 
 from __future__ import annotations
 
@@ -57,9 +56,7 @@ def border_foreground(masks: torch.Tensor) -> List[float]:
 
 def warn_object_cut_by_frame(outputs: DataparserOutputs) -> List[float]:
     """Warn when the frame cuts the object off in some training view (foreground on more than 1% of
-    the image border): the parts outside every frame get no supervision, so the surface there is a
-    guess (on the GSO box `cream`, cut off in all four views, it flares out into a skirt) and a mesh
-    metric that counts them is worse for it. Returns the per-view shares (empty without masks)."""
+    the image border: unsupervised surface). Returns the per-view shares (empty without masks)."""
     if outputs.masks is None:
         return []
     shares = border_foreground(outputs.masks)

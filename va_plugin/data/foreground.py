@@ -1,11 +1,8 @@
 """Foreground masks for inputs without alpha, and a picture of them for the user to check.
 
-Generators paint the object on a flat background (SyncDreamer and Wonder3D: white; Zero123++: gray, or
-off-white after InstantMesh's fine-tuning). :func:`colour_key_mask` estimates that colour from the
-view's border, keys it out, then cleans the result up: a closing joins the edge pixels, specks far
-smaller than the object are dropped, and small enclosed holes (object parts of the background's
-colour) are filled while large ones (a mug's handle) stay open. Masks the user drew take precedence
-(:func:`read_mask`).
+Generators paint the object on a flat background (white, or gray for Zero123++).
+:func:`colour_key_mask` estimates that colour from the view's border, keys it out, closes the edges,
+drops specks and fills small enclosed holes (large ones, like a mug's handle, stay open).
 """
 
 from __future__ import annotations
@@ -41,11 +38,15 @@ class ColourKey:
     """A view whose mask covers less than this share of the image has no detectable foreground."""
 
 
+def _frame(values: np.ndarray, border: int) -> np.ndarray:
+    """The outer ``border`` pixels of ``values [H, W, ...]``, flattened to ``[n, ...]``."""
+    parts = (values[:border], values[-border:], values[:, :border], values[:, -border:])
+    return np.concatenate([p.reshape(-1, *values.shape[2:]) for p in parts])
+
+
 def estimate_background(image: np.ndarray, border: int = 3) -> np.ndarray:
     """The median colour ``[3]`` of the outer ``border`` pixels of an RGB image ``[H, W, 3]``."""
-    frame = np.concatenate([image[:border].reshape(-1, 3), image[-border:].reshape(-1, 3),
-                            image[:, :border].reshape(-1, 3), image[:, -border:].reshape(-1, 3)])
-    return np.median(frame, axis=0).astype(np.float32)
+    return np.median(_frame(image, border), axis=0).astype(np.float32)
 
 
 def _remove_specks(mask: np.ndarray, min_share: float) -> np.ndarray:
@@ -69,16 +70,12 @@ def _fill_small_holes(mask: np.ndarray, max_share: float) -> np.ndarray:
 
 
 def colour_key_mask(image: np.ndarray, key: Optional[ColourKey] = None, where: str = "image") -> np.ndarray:
-    """Foreground mask ``[H, W, 1]`` (0 or 1, float32) of an RGB image ``[H, W, 3]`` on a flat background.
-
-    Raises:
-        DataError: when the border has no dominant colour, or nothing stands out from it.
-    """
+    """Foreground mask ``[H, W, 1]`` (0 or 1, float32) of an RGB image ``[H, W, 3]`` on a flat background;
+    DataError when the border has no dominant colour, or nothing stands out from it."""
     key = key or ColourKey()
     background = estimate_background(image, key.border)
     distance = np.abs(image - background).max(axis=-1)
-    frame = np.concatenate([distance[:key.border].ravel(), distance[-key.border:].ravel(),
-                            distance[:, :key.border].ravel(), distance[:, -key.border:].ravel()])
+    frame = _frame(distance, key.border)
     colour = ", ".join(f"{round(255 * c)}" for c in background)
     if (frame <= key.threshold).mean() < key.min_border_share:
         raise DataError(f"{where}: no flat background colour along the border, so the object cannot be keyed "

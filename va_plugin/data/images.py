@@ -41,11 +41,8 @@ def decode_image(raw: np.ndarray, flags: int = cv2.IMREAD_UNCHANGED) -> Optional
 
 
 def read_image(path: Path) -> np.ndarray:
-    """An image as float32 ``[H, W, C]`` in [0, 1], C = 3 (RGB) or 4 (RGBA).
-
-    Accepts 8- and 16-bit PNG/JPEG/etc. Raises :class:`DataError` for a missing, truncated or
-    non-image file.
-    """
+    """An 8- or 16-bit image file as float32 ``[H, W, C]`` in [0, 1], C = 3 (RGB) or 4 (RGBA);
+    :class:`DataError` for a missing, truncated or non-image file."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"image not found: {path}")
@@ -87,10 +84,8 @@ def write_image(path: Path, image: np.ndarray) -> None:
 
 
 def split_alpha(image: np.ndarray, background: Sequence[float]) -> Tuple[np.ndarray, Optional[np.ndarray]]:
-    """Composite an RGBA image on ``background``; returns RGB ``[H, W, 3]`` and mask ``[H, W, 1]``.
-
-    An RGB image is returned as it is, with no mask.
-    """
+    """Composite an RGBA image on ``background``: RGB ``[H, W, 3]`` and mask ``[H, W, 1]`` (an RGB image
+    comes back as it is, with no mask)."""
     if image.shape[2] == 3:
         return image, None
     alpha = image[:, :, 3:4]

@@ -9,14 +9,11 @@ axes are OpenCV's (see :mod:`va_plugin.cameras`).
   objects fill the unit box.
 * **Zero123++** (its README, and InstantMesh's ``get_zero123plus_input_cameras``): 6 views at azimuth 30,
   90, ..., 330 deg relative to the input view; elevations alternate 30 / -20 deg with FOV 49.13 deg
-  (v1.1, the Zero-1-to-3 lens: ``2 atan(16 / 35)``) or 20 / -10 deg with FOV 30 deg (v1.2). The
-  maintainers state that the radius only sets the object's scale; InstantMesh uses 4.0 with objects in
-  ``[-1, 1]^3`` (measured on real v1.2 outputs: their visual hull spans about that box), so ours is 2.0.
-* **Wonder3D** (``instant-nsr-pl/datasets/fixed_poses`` and ``ortho.py`` of its repository): 6
-  orthographic views at elevation 0, ``front, front_right, right, back, left, front_left`` at azimuth 0,
-  45, 90, 180, -90, -45 deg (the right view is the front view turned 90 deg counter-clockwise about the
-  up axis); its renders used ``ortho_scale`` 1.35 (the image spans 1.35 world units) with pixel centres
-  at +0.5.
+  (v1.1: ``2 atan(16 / 35)``) or 20 / -10 deg with FOV 30 deg (v1.2). The radius only sets the scale;
+  InstantMesh's 4.0 for objects in ``[-1, 1]^3`` is 2.0 for our unit box.
+* **Wonder3D** (``instant-nsr-pl/datasets/fixed_poses`` and ``ortho.py``): 6 orthographic views at
+  elevation 0, ``front, front_right, right, back, left, front_left`` at azimuth 0, 45, 90, 180, -90,
+  -45 deg; ``ortho_scale`` 1.35 (the image spans 1.35 world units), pixel centres at +0.5.
 """
 
 from __future__ import annotations
@@ -84,10 +81,8 @@ def syncdreamer_rig(resolution: int = 256, elevation_deg: float = RIG_ELEVATION_
 
 
 def input_view_ids(n_views: int) -> List[int]:
-    """SyncDreamer rig indices of ``n_views`` inputs uniform in azimuth starting at 0 (4 -> 0, 4, 8, 12).
-
-    Counts that do not divide 16 (12 -> 0, 1, 3, 4, 5, 7, ...) are spread as evenly as the rig allows.
-    """
+    """SyncDreamer rig indices of ``n_views`` inputs uniform in azimuth from 0 (4 -> 0, 4, 8, 12;
+    12 -> 0, 1, 3, 4, 5, 7, ...: as evenly as the rig allows)."""
     if not isinstance(n_views, int) or n_views < 1 or n_views > RIG_VIEWS:
         raise ConfigError(f"the SyncDreamer rig has {RIG_VIEWS} views; cannot take {n_views} input views")
     return sorted({round(k * RIG_VIEWS / n_views) % RIG_VIEWS for k in range(n_views)})

@@ -1,8 +1,7 @@
 """Training callbacks: how models and wrappers react to the step without knowing the trainer.
 
-A callback gets the step and :class:`TrainingCallbackAttributes` (as nerfstudio's callbacks do): the
-pipeline, the step budget, the run folder and a way to report, never the trainer. What it wants changed
-in the trainer it returns: learning-rate factors by optimizer group."""
+A callback gets the step and :class:`TrainingCallbackAttributes` (never the trainer) and returns the
+learning-rate factors it wants, by optimizer group."""
 
 from __future__ import annotations
 
@@ -14,8 +13,7 @@ BEFORE_STEP = "before_step"
 AFTER_STEP = "after_step"
 
 LearningRateFactors = Optional[Dict[str, float]]
-"""What a callback returns: ``{optimizer group: factor of its learning rate}`` (kept until changed; a
-checkpoint keeps them too), or None for no change."""
+"""What a callback returns: ``{optimizer group: learning-rate factor}`` (kept until changed), or None."""
 
 
 @dataclass(frozen=True)

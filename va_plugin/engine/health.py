@@ -2,28 +2,16 @@
 
 The trainer asks a :class:`TrainingGuard` about every step:
 
-* a loss or gradient that is NaN or infinite: the step is skipped (no optimizer update);
-* a loss term that jumps far above its own running level (a blow-up, e.g. from a learning rate far too
-  high), parameters that turned non-finite after an update, or too many skipped steps in a row:
-  the last good state (parameters and optimizer state, kept in memory every ``snapshot_every`` steps) is
-  restored and the learning rates are multiplied by ``lr_backoff``;
-* inv_s (NeuS's sharpness) falling below its value at the start of training: a sign of divergence,
-  reported once as a warning and in every log record (``inv_s_below_start``). Not during the
-  learning-rate warm-up: while the surface forms from the start sphere inv_s dips for a few dozen
-  steps in healthy runs (by up to ~50% at neus's inv_s learning rate of 2e-2, measured on GSO objects);
-* inv_s leaving its sane range, collapsed below ``inv_s_collapse`` times the highest value it reached
-  (its start value to begin with: the surface dissolved into fog) or shot up to ``inv_s_saturation``
-  (next to its clamp at 1e6: a step function that passes no gradient): an absurd learning rate can do
-  either in one step without any NaN, so it is treated like a blow-up: the last good state is restored
-  with lower learning rates. A surface can also dissolve within a few dozen steps with every value
-  finite (a regularizer that outweighs the colour loss; seen on a real SyncDreamer output, inv_s 195 ->
-  25 -> 1.0 in 50 steps), so the last good state is only refreshed while inv_s holds at least
-  ``snapshot_inv_s_fraction`` of its peak: the state a collapse rolls back to is one from before the fall.
+* a non-finite loss or gradient: the step is skipped;
+* a loss term far above its running level, non-finite parameters after an update, too many skips in
+  a row, or inv_s (NeuS's sharpness) collapsed below ``inv_s_collapse`` of its peak or saturated at
+  ``inv_s_saturation``: the last good state (kept every ``snapshot_every`` steps, and only while inv_s
+  holds ``snapshot_inv_s_fraction`` of its peak) is restored and the learning rates lowered;
+* inv_s below its start value after the warm-up: a divergence warning.
 
-Each kind of event warns once; the counts go to ``metrics.jsonl`` (``bad_steps``, ``restores``,
-``lr_scale``). A run that still blows up after ``max_restores`` restores stops with
-:class:`TrainingDiverged`, a one-line user error, instead of writing a checkpoint of garbage.
-Healthy runs are untouched: the guard only reads the loss, so their numbers are bit-for-bit the same.
+Each kind of event warns once; the counts go to ``metrics.jsonl``. A run that still blows up after
+``max_restores`` restores stops with :class:`TrainingDiverged`. The guard only reads the loss, so
+healthy runs are unchanged.
 """
 
 from __future__ import annotations
@@ -55,10 +43,10 @@ class HealthConfig:
     """When a step counts as bad, and what the trainer does about it."""
 
     spike_factor: float = 20.0
-    """A loss term above ``spike_factor`` times its running level (and above ``spike_floor``) is a blow-up:
-    the last good state is restored (0: no blow-up test; non-finite values are still caught)."""
+    """A loss term above ``spike_factor`` times its running level (and above ``spike_floor``) is a
+    blow-up (0: no blow-up test)."""
     spike_floor: float = 2.0
-    """Losses below this never count as a blow-up (a healthy run's photometric and mask terms stay far below)."""
+    """Losses below this never count as a blow-up."""
     snapshot_every: int = 10
     """Steps between in-memory copies of the last good state."""
     lr_backoff: float = 0.5
@@ -68,23 +56,18 @@ class HealthConfig:
     max_restores: int = 20
     """Restores after which training stops with a clear error."""
     inv_s_tolerance: float = 0.5
-    """inv_s counts as below its start when it falls more than this fraction under it: a small dip before a
-    surface forms is normal, a diverging run falls by orders of magnitude (see ``inv_s_collapse``)."""
+    """inv_s counts as below its start when it falls more than this fraction under it."""
     inv_s_collapse: float = 0.05
-    """inv_s below this fraction of the highest value it reached (its start value before it rose) is a
-    collapse, rolled back like a blow-up (0: never)."""
+    """inv_s below this fraction of its peak is a collapse, rolled back like a blow-up (0: never)."""
     snapshot_inv_s_fraction: float = 0.5
-    """The last good state is refreshed only while inv_s is at least this fraction of its peak (0: always),
-    so that a collapse, which takes some steps, rolls back to a state from before the fall. A run that
-    ends below it gets a warning in its summary."""
+    """The last good state is refreshed only while inv_s is at least this fraction of its peak (0:
+    always), so a collapse rolls back to before the fall."""
     inv_s_saturation: float = 1e5
-    """inv_s at or above this counts as saturated, rolled back like a blow-up (0: never; 1e6 is inv_s's
-    clamp)."""
+    """inv_s at or above this is saturated, rolled back like a blow-up (0: never)."""
     min_foreground_opacity: float = 0.2
-    """After training, the mean opacity the model renders on the masks' foreground must reach this, or the
-    run ends with :class:`UnusableModel` (0: no check)."""
+    """Mean foreground opacity a trained model must reach, else :class:`UnusableModel` (0: no check)."""
     final_check_after: int = 100
-    """Runs shorter than this many steps skip that check (a model this young may not have formed yet)."""
+    """Runs shorter than this many steps skip that check."""
 
     def validate(self) -> None:
         from va_plugin.errors import ConfigError
@@ -104,10 +87,8 @@ class HealthConfig:
 def all_finite(tensors) -> bool:
     """True when no tensor (None entries skipped) holds a NaN or an infinity.
 
-    Judged from each tensor's minimum and maximum (``aminmax``, one reduction pass without an
-    intermediate tensor): NaN propagates into both, +-inf shows up in one, and all-finite values give
-    finite extremes. 10-15x faster than ``isfinite(t).all()`` on a hash table of 3M entries, the same
-    verdict (tested against it)."""
+    Judged from each tensor's ``aminmax`` (NaN and inf reach the extremes): one reduction pass, no
+    intermediate tensor."""
     for t in tensors:
         if t is None or t.numel() == 0:
             continue
@@ -121,8 +102,7 @@ class TrainingGuard:
     """The health state of one run; see the module docstring. Its state goes into checkpoints."""
 
     def __init__(self, config: HealthConfig, inv_s_start: Optional[float] = None, grace_steps: int = 0) -> None:
-        """``grace_steps``: steps (the learning-rate warm-up) during which a fall of inv_s is not yet
-        reported; a collapse (``inv_s_collapse``) is rolled back from the first step."""
+        """``grace_steps``: steps (the warm-up) during which a fall of inv_s is not reported."""
         config.validate()
         self.grace_steps = max(int(grace_steps), 0)
         self.config = config
@@ -144,10 +124,8 @@ class TrainingGuard:
     # -- the verdict on a step ------------------------------------------------------------------------
     @timed("health")
     def check_loss(self, loss: torch.Tensor, terms: Dict[str, torch.Tensor]) -> str:
-        """OK, SKIP (non-finite) or RESTORE (blow-up) for a step's total loss and its terms, before backward.
-
-        Each term is judged against its own running level, so a term that appears mid-run (a
-        regularizer switched on by a training phase) sets its level instead of counting as a blow-up."""
+        """OK, SKIP (non-finite) or RESTORE (blow-up) for a step's loss and its terms, before backward.
+        Each term is judged against its own running level; a new term sets its level."""
         if not math.isfinite(float(loss.detach())):
             return self._bad("non-finite loss")
         cfg = self.config
@@ -213,19 +191,15 @@ class TrainingGuard:
     @timed("health")
     def maybe_snapshot(self, step: int, model: torch.nn.Module, optimizer: torch.optim.Optimizer,
                        force: bool = False) -> None:
-        """Keep a copy of the current (good) parameters and optimizer state every ``snapshot_every`` steps.
-
-        Buffers are not copied: they hold schedules and bookkeeping (a training phase, an occupancy
-        grid) that follow the step, which a restore does not rewind. Not refreshed while inv_s is below
-        ``snapshot_inv_s_fraction`` of its peak (a possible collapse in progress)."""
+        """Keep a copy of the parameters and optimizer state every ``snapshot_every`` steps, unless inv_s
+        has fallen (:meth:`_fallen`). Buffers (schedules, occupancy grids) are not rewound."""
         if force or self._snapshot is None or (step % self.config.snapshot_every == 0 and not self._fallen()):
             self._snapshot = {"step": step,
                               "parameters": {k: v.detach().clone() for k, v in model.named_parameters()},
                               "optimizer": copy.deepcopy(optimizer.state_dict())}
 
     def _fallen(self) -> bool:
-        """inv_s now below ``snapshot_inv_s_fraction`` of its peak. Healthy runs dip there early (the surface
-        reshapes after the warm-up) and end at 0.9-1.0 of it (measured); a thinning surface stays there."""
+        """inv_s now below ``snapshot_inv_s_fraction`` of its peak."""
         return (self.inv_s_now is not None and self.inv_s_peak is not None
                 and self.inv_s_now < self.config.snapshot_inv_s_fraction * self.inv_s_peak)
 

@@ -1,8 +1,7 @@
 """A run's metrics log, ``RUN/metrics.jsonl``: one JSON object a line, appended by the trainer.
 
-Training records carry ``step`` (steps done) and ``loss`` with the loss terms, PSNR and diagnostics;
-events (phase switches, the consistency check) carry ``step`` and ``event``; periodic evaluations
-``step`` and ``eval_psnr``. This module is the one place that writes and reads the file."""
+Training records carry ``step`` (steps done), ``loss`` and the loss terms, PSNR and diagnostics; events
+carry ``step`` and ``event``; periodic evaluations ``step`` and their metrics."""
 
 from __future__ import annotations
 

@@ -104,12 +104,8 @@ def list_checkpoints(run_dir: Path) -> List[Path]:
 
 
 def make_adam(param_groups) -> torch.optim.Optimizer:
-    """Adam over ``param_groups``, on the fused kernel where torch has one for the parameters' device.
-
-    The fused kernel does the same update in one pass over each tensor: on one CPU thread 2.5 ms
-    instead of 17 ms per step for the hash grid's 3.1M entries (the per-tensor loop of the default
-    reads and writes each state tensor several times), about a tenth of a `neus` step. Fused Adam
-    exists for CPU and CUDA floating-point tensors; anything else takes the default loop."""
+    """Adam over ``param_groups``, on the fused kernel (one pass over each tensor) for CPU and CUDA
+    floating-point parameters; anything else takes the default loop."""
     params = [p for group in param_groups for p in group["params"]]
     fusable = bool(params) and all(p.is_floating_point() and p.device.type in ("cpu", "cuda") for p in params)
     if fusable:
@@ -121,8 +117,7 @@ def make_adam(param_groups) -> torch.optim.Optimizer:
 
 
 class RemovedOption:
-    """What a checkpoint's config holds, once loaded, in place of an option class this version no longer
-    has (an experiment that was switched off in that run and has since left the package)."""
+    """Stands in, in a loaded checkpoint's config, for an option class this version no longer has."""
 
     def __init__(self, *args: Any, **kwargs: Any) -> None:
         pass
@@ -290,8 +285,7 @@ class Trainer:
         return True
 
     def _truncate_log(self) -> None:
-        """Drop the log lines of steps after the resumed checkpoint (a killed run logged them, the
-        resumed run logs them again), so the log reads as one uninterrupted run."""
+        """Drop the log lines of steps after the resumed checkpoint, so the log reads as one run."""
         if not (self.run_dir / METRICS_FILE).is_file():
             return
         kept = []
@@ -427,11 +421,10 @@ def train_run(config: TrainerConfig, resume: bool = True, trainer: Optional[Trai
               on_resume: Optional[Callable[[int], None]] = None) -> TrainedRun:
     """Train a run folder to its budget: the one way every command and benchmark trains a run.
 
-    With ``resume``, the run continues from the newest checkpoint in ``config.output_dir`` when there is
-    one (then ``on_resume(step)`` is called before training). A Ctrl-C writes a checkpoint and comes out
-    as :class:`TrainingInterrupted` (a KeyboardInterrupt); a finished model that renders nothing on the
-    masks' foreground as :class:`~va_plugin.engine.health.UnusableModel`. ``trainer``: one already set up from
-    ``config`` (for a caller that reads it before training)."""
+    With ``resume``, continue from the newest checkpoint in ``config.output_dir`` (calling
+    ``on_resume(step)`` first). Ctrl-C writes a checkpoint and raises :class:`TrainingInterrupted`; a
+    model that renders nothing on the foreground raises :class:`~va_plugin.engine.health.UnusableModel`.
+    ``trainer``: one already set up from ``config``."""
     trainer = config.setup() if trainer is None else trainer
     resumed_from = trainer.step if resume and trainer.resume() else None
     if resumed_from is not None and on_resume is not None:

@@ -79,9 +79,7 @@ def evaluate_run(pipeline, state: Dict[str, Any], scene_dir: Optional[Path] = No
                  progress: bool = True, mesh: Optional[trimesh.Trimesh] = None,
                  render_dir: Optional[Path] = None) -> Dict[str, Any]:
     """All metrics of a trained run: psnr, ssim, lpips, cd, iou, fscore, plus timing and parameters.
-
-    ``mesh``: the run's mesh when the caller has already extracted it (at ``mesh_resolution``), so it is
-    not extracted twice; ``render_dir``: also write the held-out renders there (see :func:`image_metrics`)."""
+    ``mesh``: the run's mesh if already extracted; ``render_dir``: see :func:`image_metrics`."""
     started = time.perf_counter()
     result: Dict[str, Any] = {"method": state.get("method_name"), "steps": int(state["step"]),
                               "train_seconds": float(state.get("train_seconds", 0.0))}

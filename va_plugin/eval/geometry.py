@@ -1,16 +1,9 @@
-"""Geometry metrics between a reconstructed and a ground-truth triangle mesh.
+"""Geometry metrics between a reconstructed and a ground-truth ``trimesh.Trimesh`` in one world frame.
 
-Both meshes must be ``trimesh.Trimesh`` objects in the same world frame. All
-distances are in world units; the project's objects are scaled to a unit
-bounding box, so a Chamfer distance of 0.01 is 1% of the object's size.
-
-Chamfer distance and F-score compare uniform surface samples by their
-nearest neighbours (point-to-point, not point-to-surface), so they have a
-sampling floor: two independent samplings of one surface of area ``A`` with
-``n`` points each sit about ``0.5 * sqrt(A / n)`` apart on average (a sphere
-of diameter 1 at 100k samples: ~0.0028). The prediction and ground truth are
-sampled with independent random streams derived from one seed, so a mesh
-compared with itself shows this floor instead of an artificial exact 0.
+Distances are in world units (objects fill a unit box: a Chamfer distance of 0.01 is 1% of the size).
+Chamfer and F-score compare uniform surface samples point to point, so they have a sampling floor:
+two samplings of a surface of area ``A`` with ``n`` points each sit about ``0.5 * sqrt(A / n)`` apart
+(a sphere of diameter 1 at 100k samples: ~0.0028); a mesh compared with itself shows this floor.
 """
 
 from __future__ import annotations
@@ -45,12 +38,8 @@ def _check_mesh(mesh, name: str) -> trimesh.Trimesh:
 
 
 def sample_surface(mesh: trimesh.Trimesh, n: int, seed: Union[int, np.random.SeedSequence] = 0) -> np.ndarray:
-    """``n`` points drawn uniformly over the surface area, shape ``[n, 3]`` float64.
-
-    Faces are picked with probability proportional to their area, then a
-    point uniform in the triangle. The same ``seed`` (an int or a numpy
-    ``SeedSequence``) always gives the same points.
-    """
+    """``n`` points drawn uniformly over the surface area, ``[n, 3]`` float64; the same ``seed`` (an int
+    or a ``SeedSequence``) gives the same points."""
     mesh = _check_mesh(mesh, "mesh")
     if n <= 0:
         raise ValueError(f"n must be positive, got {n}")
@@ -68,12 +57,8 @@ def sample_surface(mesh: trimesh.Trimesh, n: int, seed: Union[int, np.random.See
 def nearest_distances(
     pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, n_samples: int = 100_000, seed: int = 0
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Nearest-neighbour distances between surface samples of both meshes.
-
-    Returns ``(pred_to_gt [n], gt_to_pred [n])``: for each pred sample the
-    Euclidean distance to the closest gt sample, and the other way round.
-    The two meshes get independent sample streams spawned from ``seed``.
-    """
+    """``(pred_to_gt [n], gt_to_pred [n])``: each sample's distance to the other mesh's closest sample;
+    the meshes get independent sample streams spawned from ``seed``."""
     _check_mesh(pred_mesh, "pred_mesh")
     _check_mesh(gt_mesh, "gt_mesh")
     pred_seed, gt_seed = np.random.SeedSequence(seed).spawn(2)
@@ -100,12 +85,8 @@ def _f_score(pred_to_gt: np.ndarray, gt_to_pred: np.ndarray, threshold: float) -
 def chamfer_distance(
     pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, n_samples: int = 100_000, seed: int = 0
 ) -> float:
-    """Symmetric Chamfer distance in world units (lower is better).
-
-    ``0.5 * (mean_p min_g |p - g| + mean_g min_p |g - p|)`` over ``n_samples``
-    uniform surface samples of each mesh; distances are Euclidean, not
-    squared. Two spheres of radius r shifted by d (d << r) give about d / 2.
-    """
+    """Symmetric Chamfer distance ``0.5 * (mean_p min_g |p - g| + mean_g min_p |g - p|)`` (Euclidean, not
+    squared) over ``n_samples`` surface samples of each mesh. Two spheres shifted by d give about d / 2."""
     return _chamfer(*nearest_distances(pred_mesh, gt_mesh, n_samples, seed))
 
 
@@ -116,22 +97,14 @@ def f_score(
     n_samples: int = 100_000,
     seed: int = 0,
 ) -> float:
-    """F-score at ``threshold`` (world units) in [0, 1], higher is better.
-
-    Harmonic mean of precision (share of pred samples within ``threshold`` of
-    a gt sample) and recall (share of gt samples within ``threshold`` of a
-    pred sample). Keep ``threshold`` well above the sampling floor (see the
-    module docstring) or even a perfect mesh scores below 1.
-    """
+    """F-score in [0, 1]: harmonic mean of precision (share of pred samples within ``threshold`` of a gt
+    sample) and recall (the other way round). Keep ``threshold`` well above the sampling floor."""
     return _f_score(*nearest_distances(pred_mesh, gt_mesh, n_samples, seed), threshold)[0]
 
 
 def _grid_box(pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, bound: Optional[Bound]) -> np.ndarray:
-    """The evaluation box as ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]``.
-
-    ``bound`` may be None (union of both bounding boxes), a float ``b`` (the
-    cube ``[-b, b]^3``), or a ``[2, 3]`` array of corners.
-    """
+    """The evaluation box ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` from ``bound``: None (union of both
+    bounding boxes), a float ``b`` (``[-b, b]^3``) or a ``[2, 3]`` array of corners."""
     if bound is None:
         return np.stack([np.minimum(pred_mesh.bounds[0], gt_mesh.bounds[0]),
                          np.maximum(pred_mesh.bounds[1], gt_mesh.bounds[1])])
@@ -146,25 +119,14 @@ def _grid_box(pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, bound: Optio
 
 
 def voxel_centres(box: np.ndarray, resolution: int) -> np.ndarray:
-    """Centres of a ``resolution^3`` grid of cells filling ``box``, shape ``[R, R, R, 3]`` float32.
-
-    Each axis is split into ``resolution`` equal cells, so cells are not
-    cubes when the box is not. Centres sit half a cell inside the box faces.
-    """
+    """Centres of a ``resolution^3`` grid of equal cells filling ``box``, ``[R, R, R, 3]`` float32."""
     axes = [box[0, i] + (np.arange(resolution) + 0.5) * (box[1, i] - box[0, i]) / resolution for i in range(3)]
     return np.stack(np.meshgrid(*axes, indexing="ij"), axis=-1).astype(np.float32)
 
 
 def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
-    """Inside test of ``[..., 3]`` points against a mesh, bool of shape ``[...]``.
-
-    Uses open3d's ``RaycastingScene.compute_occupancy``: a point is inside
-    when a ray from it crosses the surface an odd number of times, with a
-    majority vote over ``OCCUPANCY_RAYS`` rays (guards against rays that graze
-    an edge). Exact for watertight meshes. Small holes cost little (removing
-    1% of a sphere's faces costs about 1% IoU), but a mesh with large openings
-    has no well-defined inside and its IoU means little.
-    """
+    """Inside test of ``[..., 3]`` points against a mesh, bool ``[...]``: open3d's ray-parity occupancy
+    with a majority vote over ``OCCUPANCY_RAYS`` rays. Exact for watertight meshes."""
     from va_plugin.utils.interrupts import interrupt_deferred
 
     with interrupt_deferred():  # heavy import, only needed here; a Ctrl-C during it fails the import
@@ -182,16 +144,9 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
 def volume_iou(
     pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, resolution: int = 64, bound: Optional[Bound] = None
 ) -> float:
-    """Volumetric IoU ``|A ∩ B| / |A ∪ B|`` of the solids the meshes enclose, in [0, 1].
-
-    Occupancy is tested at the centres of a ``resolution^3`` grid over the
-    union of both bounding boxes (or ``bound``: a float ``b`` for
-    ``[-b, b]^3``, or ``[[xmin,ymin,zmin],[xmax,ymax,zmax]]``); see
-    ``occupancy`` for the inside test. The result is accurate to about one
-    cell layer at the surfaces. Warns (``UserWarning``) for a mesh that is not
-    watertight, whose inside is only approximate. Raises ``ValueError`` when
-    neither mesh occupies any grid point (e.g. a bound that misses both).
-    """
+    """Volumetric IoU ``|A ∩ B| / |A ∪ B|`` in [0, 1] of the solids the meshes enclose, tested at the
+    centres of a ``resolution^3`` grid over :func:`_grid_box`. Warns for a mesh that is not watertight;
+    raises ``ValueError`` when neither mesh occupies any grid point."""
     for mesh, name in ((pred_mesh, "pred_mesh"), (gt_mesh, "gt_mesh")):
         _check_mesh(mesh, name)
         if not mesh.is_watertight:
@@ -215,11 +170,8 @@ def geometry_metrics(
     resolution: int = 64,
     bound: Optional[Bound] = None,
 ) -> dict:
-    """Chamfer distance, F-score (with precision and recall) and volume IoU, plus the parameters used.
-
-    The surface samples are drawn once and shared by Chamfer and F-score, so
-    the values equal those of the separate functions with the same arguments.
-    """
+    """Chamfer distance, F-score (with precision and recall) and volume IoU, plus the parameters used;
+    the same values as the separate functions with the same arguments."""
     pred_to_gt, gt_to_pred = nearest_distances(pred_mesh, gt_mesh, n_samples, seed)
     fs, precision, recall = _f_score(pred_to_gt, gt_to_pred, threshold)
     return {

@@ -1,10 +1,6 @@
-"""Image metrics: PSNR and SSIM on float RGB images in [0, 1].
+"""Image metrics: PSNR and SSIM on float ``[H, W, C]`` images in [0, 1] (torch or numpy), as floats.
 
-Both functions take ``[H, W, C]`` images (``C`` is 3 for RGB) as torch tensors
-or numpy arrays and return a python float. Images are assumed to be already
-composited on a white background by the caller: an RGBA render must be turned
-into ``rgb * alpha + (1 - alpha)`` before it is scored, for prediction and
-ground truth alike, or background pixels will dominate the score.
+Callers composite RGBA images on white (``rgb * alpha + (1 - alpha)``), prediction and ground truth alike.
 """
 
 from __future__ import annotations
@@ -21,8 +17,7 @@ ImageLike = Union[torch.Tensor, np.ndarray]
 
 PSNR_CAP_DB = 100.0
 
-# SSIM constants of Wang et al. 2004, with the gaussian window that
-# scikit-image uses for gaussian_weights=True (sigma 1.5, truncate 3.5 -> 11 taps).
+# SSIM constants of Wang et al. 2004, with scikit-image's gaussian window (sigma 1.5, 11 taps).
 SSIM_WINDOW = 11
 SSIM_SIGMA = 1.5
 SSIM_K1 = 0.01
@@ -30,12 +25,8 @@ SSIM_K2 = 0.03
 
 
 def as_image_tensor(img: ImageLike, name: str = "image") -> torch.Tensor:
-    """An ``[H, W, C]`` float32 tensor from a torch tensor or numpy array.
-
-    Tensors keep their device; numpy arrays land on the CPU. Raises
-    ``ValueError`` for anything that is not a 3-d image, and for integer
-    images, whose [0, 255] range would silently give wrong scores.
-    """
+    """An ``[H, W, C]`` float32 tensor (on the tensor's device, or the CPU) from a tensor or numpy array;
+    ``ValueError`` for a non-3-d or integer image."""
     t = img.detach() if isinstance(img, torch.Tensor) else torch.from_numpy(np.ascontiguousarray(img))
     if t.ndim != 3:
         raise ValueError(f"{name} must have shape [H, W, C], got {tuple(t.shape)}")
@@ -54,17 +45,8 @@ def _check_pair(pred: ImageLike, gt: ImageLike) -> tuple[torch.Tensor, torch.Ten
 
 
 def psnr(pred: ImageLike, gt: ImageLike, max_val: float = 1.0) -> float:
-    """Peak signal-to-noise ratio in dB, ``10 * log10(max_val**2 / MSE)``.
-
-    Args:
-        pred, gt: ``[H, W, C]`` float images in ``[0, max_val]``, composited on
-            white by the caller.
-        max_val: the peak value of the images' range.
-
-    The MSE is clamped below at ``1e-10``, so identical images give a finite
-    cap of ``10*log10(max_val**2 / 1e-10)`` dB (100 dB for ``max_val=1``)
-    instead of ``inf``.
-    """
+    """Peak signal-to-noise ratio in dB, ``10 * log10(max_val**2 / MSE)``, of ``[H, W, C]`` images in
+    ``[0, max_val]``. The MSE is clamped at ``1e-10``: identical images give 100 dB for ``max_val=1``."""
     p, g = _check_pair(pred, gt)
     return float(psnr_from_mse(torch.mean((p - g) ** 2).double(), max_val))
 
@@ -77,27 +59,16 @@ def gaussian_kernel_1d(size: int = SSIM_WINDOW, sigma: float = SSIM_SIGMA) -> to
 
 
 def _filter_valid(x: torch.Tensor, taps: torch.Tensor) -> torch.Tensor:
-    """Separable gaussian filter of ``[C, 1, H, W]`` maps without padding.
-
-    Returns ``[C, 1, H - k + 1, W - k + 1]``: only the positions whose window
-    lies fully inside the image, which is exactly the region that
-    scikit-image averages over after cropping its reflect-padded border.
-    """
+    """Separable gaussian filter of ``[C, 1, H, W]`` maps without padding: ``[C, 1, H - k + 1, W - k + 1]``,
+    the region scikit-image averages over."""
     k = taps.numel()
     x = F.conv2d(x, taps.view(1, 1, k, 1))
     return F.conv2d(x, taps.view(1, 1, 1, k))
 
 
 def ssim_map(pred: torch.Tensor, gt: torch.Tensor, data_range: float = 1.0) -> torch.Tensor:
-    """Per-pixel SSIM over the valid region, shape ``[C, H - 10, W - 10]``.
-
-    Args:
-        pred, gt: float32 ``[H, W, C]`` tensors on one device, ``H, W >= 11``.
-        data_range: the images' value range (1 for images in [0, 1]).
-
-    Uses population (not sample) covariances, as scikit-image does with
-    ``use_sample_covariance=False``.
-    """
+    """Per-pixel SSIM ``[C, H - 10, W - 10]`` of float32 ``[H, W, C]`` tensors (``H, W >= 11``) with
+    population covariances; ``data_range``: the images' value range."""
     x = pred.permute(2, 0, 1).unsqueeze(1)  # [C, 1, H, W]: channels as a batch
     y = gt.permute(2, 0, 1).unsqueeze(1)
     taps = gaussian_kernel_1d().to(x.device)
@@ -113,15 +84,9 @@ def ssim_map(pred: torch.Tensor, gt: torch.Tensor, data_range: float = 1.0) -> t
 
 
 def ssim(pred: ImageLike, gt: ImageLike) -> float:
-    """Structural similarity of two ``[H, W, C]`` images in [0, 1] (composited on white).
-
-    Gaussian window of 11 taps with sigma 1.5, K1 = 0.01, K2 = 0.03, computed
-    per channel and averaged over the valid region (pixels at least 5 from
-    the border) and the channels. Matches scikit-image's
-    ``structural_similarity(gaussian_weights=True, sigma=1.5,
-    use_sample_covariance=False, data_range=1, channel_axis=-1)``.
-    Images must be at least 11x11 pixels.
-    """
+    """Structural similarity of two ``[H, W, C]`` images in [0, 1], at least 11x11, averaged over the
+    valid region and the channels. Matches scikit-image's ``structural_similarity(gaussian_weights=True,
+    sigma=1.5, use_sample_covariance=False, data_range=1, channel_axis=-1)``."""
     p, g = _check_pair(pred, gt)
     if min(p.shape[0], p.shape[1]) < SSIM_WINDOW:
         raise ValueError(f"SSIM needs images of at least {SSIM_WINDOW}x{SSIM_WINDOW} pixels, got {tuple(p.shape)}")

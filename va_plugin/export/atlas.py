@@ -41,10 +41,8 @@ def simplify_for_texture(mesh: trimesh.Trimesh, max_faces: Optional[int] = MAX_T
 
 
 def unwrap(mesh: trimesh.Trimesh, size: int, padding: int = 4):
-    """xatlas charts packed into one ``size x size`` atlas.
-
-    Returns ``vertices [v', 3]``, ``faces [f, 3]``, ``uv [v', 2]`` (v up) and ``source [v']``, the original
-    vertex of each new one (vertices on chart seams are duplicated)."""
+    """xatlas charts packed into one ``size x size`` atlas: ``vertices [v', 3]``, ``faces [f, 3]``, ``uv [v', 2]``
+    (v up) and ``source [v']``, the original vertex of each (seam vertices are duplicated)."""
     import xatlas
 
     faces = np.asarray(mesh.faces)
@@ -70,9 +68,8 @@ def unwrap(mesh: trimesh.Trimesh, size: int, padding: int = 4):
 
 
 def rasterize_uv(uv: np.ndarray, faces: np.ndarray, size: int):
-    """Which triangle covers each texel centre, and where.
-
-    Returns ``face [S, S]`` int64 (-1 where no triangle covers the centre) and ``bary [S, S, 3]``."""
+    """Which triangle covers each texel centre, and where: ``face [S, S]`` int64 (-1: none) and
+    ``bary [S, S, 3]``."""
     corners = np.stack([uv[:, 0] * size, (1.0 - uv[:, 1]) * size, np.zeros(len(uv))], -1).astype(np.float32)
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(corners), o3d.core.Tensor(faces.astype(np.uint32)))

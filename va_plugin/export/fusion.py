@@ -1,11 +1,8 @@
 """Colour fusion across views, and the per-view colour harmonisation that precedes it.
 
-Fusion of the colours the visible views show at a surface point:
-
-- ``mean``: the weighted average of the visible views' colours (ghosting where views disagree);
-- ``robust``: the weighted medoid of the visible colours (the view colour closest to the others) as a
-  consensus, then a few reweighting rounds in which a view loses weight when it deviates from the
-  consensus by more than its own noise (the median deviation of that view over the whole mesh).
+- ``mean``: the weighted average of the visible views' colours;
+- ``robust``: the weighted medoid as a consensus, then reweighting rounds in which a view loses weight
+  when it deviates from the consensus by more than its own noise.
 
 Harmonisation fits one colour gain per view and channel so that the views agree where they overlap.
 """
@@ -28,15 +25,14 @@ ROBUST_ROUNDS = 3
 HARMONISE_ROUNDS = 8
 """Reweighting rounds of the per-view colour fit (enough for a blob on part of a view to stop pulling)."""
 FIT_WEIGHT = 0.25
-"""Only texels that both views of a pair see well (weight >= this: within 60 degrees of head-on and away
-from their silhouette edges) enter the colour fit; grazing samples are blurred and misregistered."""
+"""Only texels both views of a pair see well (weight >= this: within 60 degrees of head-on, away from
+silhouette edges) enter the colour fit."""
 RIDGE = 1e-3
 """Pull of each view's gains towards 1, per unit of the mean overlap weight of a view (it pins a view that
 overlaps no other)."""
 MAX_GAIN = 1.2
-"""Largest colour gain (and 1 / smallest) the harmonisation trusts: a view fitted beyond it in any channel
-is left as it is: generators' colour casts are small, and a far larger fit comes from misregistered
-overlaps, not from a cast."""
+"""Largest colour gain (and 1 / smallest) the harmonisation trusts; a view fitted beyond it is left as it
+is (a far larger fit comes from misregistered overlaps, not from a cast)."""
 
 
 def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 65536) -> np.ndarray:
@@ -57,8 +53,7 @@ def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 65536
 
 def view_noise(residual: np.ndarray, visible: np.ndarray) -> np.ndarray:
     """Each view's own noise ``[n]``: the median distance of its colours from the consensus where at least
-    three views (else two) see a point. It is capped at twice the median over all views, so that a view
-    that is wrong nearly everywhere cannot declare its errors to be its noise, and floored at NOISE_FLOOR."""
+    three views (else two) see a point, in [NOISE_FLOOR, twice the median over all views]."""
     count = visible.sum(1)
     pooled_sel = visible & (count >= 2)[:, None]
     pooled = float(np.median(residual[pooled_sel])) if pooled_sel.any() else NOISE_FLOOR
@@ -97,16 +92,12 @@ def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
 def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS,
               max_gain: Optional[float] = None):
     """Per-view colour gains that make the views agree where they overlap: ``gains [n, 3]`` with view
-    ``reference`` fixed at 1 (the generator's conditioning view by this project's convention, as for the
-    per-view camera and appearance corrections).
+    ``reference`` (the generator's conditioning view) fixed at 1.
 
-    Per channel, a weighted least-squares fit of ``a_k c_k = a_l c_l`` over every texel that two views k
-    and l both see well (weights >= FIT_WEIGHT; weight sqrt(w_k w_l)), with a weak ridge towards 1 so that
-    a view without overlaps stays as it is; reweighting rounds (Cauchy, scale from the median residual)
-    keep blobs, occlusion errors and misregistered edges out of the fit. Gains only: a gain and an offset
-    trade off on the near-uniform colours most overlaps hold, so fitted together they drift far from the
-    true casts. A view whose gains leave [1 / MAX_GAIN, MAX_GAIN] is distrusted (kept at 1) and the others
-    are fitted again (``max_gain``: that bound, default MAX_GAIN; ``inf`` keeps every fit)."""
+    Per channel, a robust (Cauchy-reweighted) least-squares fit of ``a_k c_k = a_l c_l`` over texels two
+    views both see well (weight sqrt(w_k w_l)), with a weak ridge towards 1. Gains only: with offsets the
+    fit drifts on near-uniform colours. A view whose gains leave [1 / max_gain, max_gain] (default
+    MAX_GAIN; ``inf`` keeps every fit) is kept at 1 and the others are fitted again."""
     max_gain = MAX_GAIN if max_gain is None else max_gain
     m, n = weights.shape
     gains = np.ones((n, 3), np.float64)

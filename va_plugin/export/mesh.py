@@ -28,14 +28,9 @@ def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: 
 
 def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, with_color: bool = True,
                  largest_component: bool = False) -> trimesh.Trimesh:
-    """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound.
-
-    A model may reshape the sampled grid first (``prepare_mesh_grid(values, spacing)``, e.g. ngp's
-    smoothing) and ask for enclosed empty space to be made solid (``fill_mesh_cavities``, see
-    :func:`fill_enclosed_cavities`), so that the mesh is the object's outer surface only.
-
-    Raises VAError when the field has no surface inside the bound (all inside or all outside).
-    """
+    """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound,
+    after the model's optional ``prepare_mesh_grid(values, spacing)`` and ``fill_mesh_cavities``.
+    Raises VAError when the field has no surface inside the bound."""
     from skimage.measure import marching_cubes
 
     device = next(model.parameters()).device
@@ -95,14 +90,8 @@ def sphere_distance_grid(resolution: int, bound: float, radius: float) -> np.nda
 
 
 def fill_enclosed_cavities(values: np.ndarray) -> np.ndarray:
-    """``values [R, R, R]`` (negative inside) with every enclosed cavity made inside.
-
-    A cavity is a 6-connected component of empty cells (value >= 0) that does not reach the grid's
-    border: no camera outside the object sees into it, so it is unsupervised, and a density field
-    trained on few views leaves one behind its surface (a shell whose inner wall doubles the mesh and
-    leaves its inside empty for the volume tests). Cavity cells get minus their value, so marching
-    cubes finds no surface between them and the shell around them. Returns a new array.
-    """
+    """A copy of ``values [R, R, R]`` (negative inside) with every enclosed cavity (a 6-connected
+    component of empty cells that does not reach the border, which no camera sees) made inside."""
     from scipy import ndimage
 
     empty = values >= 0.0

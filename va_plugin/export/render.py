@@ -98,9 +98,8 @@ def render_test_views(pipeline, out_dir: Path, scale: float = 1.0, max_views: in
 
 def mesh_views(meshes: List["trimesh.Trimesh"], n_views: int = 4, resolution: int = 128,
                elevation_deg: float = 30.0, background: float = 1.0) -> np.ndarray:
-    """One row per mesh of ``n_views`` grey shaded renders (fixed light, SyncDreamer orbit, azimuths
-    ``360 k / n_views``): a picture for comparing reconstructed meshes with each other and with the
-    ground truth, as geometry only (vertex colours are ignored)."""
+    """One row per mesh of ``n_views`` grey shaded renders on the SyncDreamer orbit: the meshes' geometry
+    side by side (vertex colours are ignored)."""
     from va_plugin.data.scenes.raycast import MeshRenderer
 
     cameras = turntable_cameras(n_views, resolution, elevation_deg)

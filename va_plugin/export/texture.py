@@ -1,12 +1,8 @@
-"""Textured meshes: a mesh's texture baked from the input views, and the entry point that bakes a loaded
-run's mesh and writes it.
+"""Textured meshes: a mesh's texture baked from the input views, and baking a loaded run's mesh.
 
-Per texel (a point on the surface): the colour and weight of every view that sees it
-(:mod:`va_plugin.export.views`), each view's colours levelled against the others, then fused
-(:mod:`va_plugin.export.fusion`). Texels no view sees take the field's colour (a fall-back callable);
-empty texels around the charts of the UV atlas (:mod:`va_plugin.export.atlas`) are filled by dilation so
-that bilinear filtering and mip-mapping do not bleed the background into seams. Files are written by
-:mod:`va_plugin.export.writing`.
+Per texel: every view's colour and weight (:mod:`va_plugin.export.views`), levelled across views and
+fused (:mod:`va_plugin.export.fusion`); texels no view sees take a fall-back colour; empty texels around
+the atlas charts (:mod:`va_plugin.export.atlas`) are dilated so filtering does not bleed into seams.
 """
 
 from __future__ import annotations
@@ -35,19 +31,12 @@ MAX_TEXTURE_SIZE = 8192
 
 @dataclass
 class TexturedMesh:
-    """A mesh with per-vertex UVs and its texture.
+    """A mesh with per-vertex UVs and its texture."""
 
-    Attributes:
-        vertices: ``[v, 3]`` float32 (split along UV seams).
-        faces: ``[f, 3]`` int64.
-        uv: ``[v, 2]`` float32 in [0, 1], v up.
-        image: ``[S, S, 3]`` float32 RGB in [0, 1].
-    """
-
-    vertices: np.ndarray
-    faces: np.ndarray
-    uv: np.ndarray
-    image: np.ndarray
+    vertices: np.ndarray  # [v, 3] float32 (split along UV seams)
+    faces: np.ndarray  # [f, 3] int64
+    uv: np.ndarray  # [v, 2] float32 in [0, 1], v up
+    image: np.ndarray  # [S, S, 3] float32 RGB in [0, 1]
 
     def to_trimesh(self) -> trimesh.Trimesh:
         from PIL import Image
@@ -96,14 +85,10 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Optional[Fallback] = None, progress: bool = False, atlas=None,
                  harmonise_views: Optional[bool] = None, max_faces: Optional[int] = MAX_TEXTURE_FACES):
-    """UV-unwrap ``mesh`` (first simplified to ``max_faces``, see
-    :func:`~va_plugin.export.atlas.simplify_for_texture`) and bake its texture from ``views``:
+    """UV-unwrap ``mesh`` (simplified to ``max_faces`` first) and bake its texture from ``views``:
     ``(TexturedMesh, BakeReport)``. ``fallback``: the colour of texels no view sees. ``atlas``: the
-    ``(vertices, faces, uv)`` of an earlier :func:`~va_plugin.export.atlas.unwrap` of the same mesh at the
-    same size (the textured mesh's own), reused as it is. ``harmonise_views``: level each view's colours
-    against the others (:func:`~va_plugin.export.fusion.harmonise`) before fusing; None: with robust fusion
-    only (mean fusion stays the plain angle-weighted average).
-
+    ``(vertices, faces, uv)`` of an earlier :func:`~va_plugin.export.atlas.unwrap` at this size, reused.
+    ``harmonise_views``: level the views' colours before fusing (None: with robust fusion only).
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
     check_texture_memory(size, len(views))

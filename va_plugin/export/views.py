@@ -1,10 +1,8 @@
-"""Input views seen from the surface: per surface point, the colour each view shows there and how much to
-trust it.
+"""Per surface point, the colour each input view shows there and how much to trust it.
 
-A view sees a point when the point lies in front of it and in its image and nothing of the mesh lies in
-between (ray casting against the mesh itself). Its weight is the squared cosine of its angle to the surface
-normal times a ramp from the view's silhouette edge (edge pixels blend the object with the background), and,
-with inconsistency maps, a fall-off where the view disagrees with the shared object.
+A view sees a point in front of it, in its image, with no mesh in between (ray cast). Its weight: the
+squared cosine to the normal, times a ramp from the silhouette edge, times (with inconsistency maps) a
+fall-off where the view disagrees.
 """
 
 from __future__ import annotations
@@ -32,19 +30,12 @@ INCONSISTENCY_SCALE = 0.05
 
 @dataclass
 class Views:
-    """Input views to bake from.
-
-    Attributes:
-        cameras: ``n`` cameras.
-        images: ``[n, H, W, 3]`` float32, composited on the background.
-        masks: ``[n, H, W]`` bool foreground masks, or None (then the mesh's own silhouettes are used).
-        inconsistency: ``[n, h, w]`` float32 per-view disagreement maps (any resolution), or None.
-    """
+    """Input views to bake from."""
 
     cameras: Cameras
-    images: np.ndarray
-    masks: Optional[np.ndarray] = None
-    inconsistency: Optional[np.ndarray] = None
+    images: np.ndarray  # [n, H, W, 3] float32, composited on the background
+    masks: Optional[np.ndarray] = None  # [n, H, W] bool (None: the mesh's own silhouettes)
+    inconsistency: Optional[np.ndarray] = None  # [n, h, w] float32 per-view disagreement maps, any size
 
     def __len__(self) -> int:
         return len(self.images)
@@ -94,15 +85,9 @@ def silhouette_distance(scene, cameras: Cameras, index: int, mask: Optional[np.n
 
 def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, normals: np.ndarray, views: Views,
                  edge_pixels: float = EDGE_PIXELS, progress: bool = False):
-    """Colour and weight of every view at every surface point.
-
-    Args:
-        vertices, faces: the mesh (its triangles occlude).
-        points, normals: ``[m, 3]`` surface points and unit outward normals.
-    Returns:
-        colours ``[m, n, 3]``, weights ``[m, n]`` (0 where view k does not see the point) and
-        ``in_view [n]`` bool: whether any pixel of view k shows the mesh (inside the view's mask).
-    """
+    """Colour and weight of every view at every surface point ``points, normals [m, 3]`` (unit outward
+    normals) of the mesh ``vertices, faces`` (which occludes): colours ``[m, n, 3]``, weights ``[m, n]``
+    (0: unseen) and ``in_view [n]`` bool (any pixel of view k shows the mesh inside its mask)."""
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
     edges = np.linalg.norm(vertices[faces[:, 1]] - vertices[faces[:, 0]], axis=-1)

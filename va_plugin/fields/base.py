@@ -1,9 +1,6 @@
-"""The Field interface shared by every backbone.
-
-A field answers two questions about a point: its geometry (an SDF value or a density, plus a
-geometry feature) and its colour. The colour path is split in two so that the view-adaptive wrapper
-can act between the halves: ``color_features`` is the shared extractor f_shared, ``decode_color``
-turns a feature of the same width into RGB.
+"""The Field interface shared by every backbone: a point's geometry (SDF or density, plus a feature)
+and its colour, split into ``color_features`` (f_shared) and ``decode_color`` so the view-adaptive
+wrapper can act between the halves.
 """
 
 from __future__ import annotations
@@ -22,8 +19,7 @@ class FieldConfig(InstantiateConfig):
     """Options every field has."""
 
     def setup_for_scene(self, scene):
-        """The field for a scene (``models.base.SceneInfo``): plain fields need nothing of it; a wrapper
-        that keeps one branch per training view overrides this."""
+        """The field for a scene (``models.base.SceneInfo``); overridden by the per-view wrapper."""
         return self.setup()
 
 
@@ -75,10 +71,8 @@ class HashGridFieldConfig(FieldConfig):
 
 
 class Field(nn.Module):
-    """Base class of geometry + colour fields.
-
-    Subclasses set ``geometry_kind`` ("sdf" or "density") and ``feature_dim`` (width of f_shared).
-    """
+    """Base class of geometry + colour fields; subclasses set ``geometry_kind`` ("sdf" or "density") and
+    ``feature_dim`` (width of f_shared)."""
 
     geometry_kind: str = "sdf"
     feature_dim: int = 0
@@ -98,15 +92,13 @@ class Field(nn.Module):
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
               weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
-        """RGB of samples. ``camera_indices`` (``[...]``, -1 for novel views), the samples' detached
-        rendering ``weights`` (``[...]``, None where unknown, e.g. mesh colours) and the ray each sample
-        belongs to (``ray_indices``, ``[...]``) are ignored by plain fields; a wrapper may use them to
-        spend work only where a sample is visible, or only on a ray's heaviest samples."""
+        """RGB of samples. ``camera_indices`` (``[...]``, -1 for novel views), the detached rendering
+        ``weights`` and ``ray_indices`` (``[...]``, None where unknown) are ignored by plain fields."""
         return {"rgb": self.decode_color(self.color_features(positions, directions, normals, geo_features))}
 
     def update_step(self, step: int, max_steps: int) -> None:
-        """Schedules of the field (e.g. coarse-to-fine grid levels); the model calls it before each
-        training step and when a run is loaded. Plain fields have none."""
+        """Schedules of the field (e.g. coarse-to-fine grid levels), called before each training step
+        and when a run is loaded."""
 
     def param_groups(self) -> Dict[str, List[nn.Parameter]]:
         """Parameters keyed like the optimizer config."""

@@ -1,13 +1,8 @@
 """A hash-grid SDF field: multiresolution hash encoding, a small SDF MLP and a small colour MLP.
 
-The capacity sits in the hash tables, so a step costs a few table look-ups and two narrow MLPs
-instead of a 4 x 256 network: on 2 CPU cores this is what lets NeuS converge in minutes. The levels
-open coarse to fine over the first part of training (a hash grid with every level open fits each
-view's pixels with high-frequency noise long before the shape is right, most of all from 4 views).
-
-The colour network is view-independent by default (``direction_frequencies = -1``): with four input
-directions a direction input lets it explain each view with colours that are wrong everywhere in
-between.
+The capacity sits in the hash tables, so a step is cheap. The levels open coarse to fine (all open at
+once fit each view with high-frequency noise before the shape is right). The colour is
+view-independent by default: with few input directions a direction input overfits each view.
 """
 
 from __future__ import annotations
@@ -59,9 +54,8 @@ class HashSDFFieldConfig(HashGridFieldConfig):
     """The view direction in the colour MLP: -1 leaves it out (view-independent colour, the default
     for few views), 0 feeds the raw direction, k > 0 adds k frequency bands."""
     sdf_gradient: str = "analytic"
-    """"analytic" (the grid's trilinear derivative, exact inside each cell) or "finite_difference"
-    (four tetrahedral SDF evaluations at the finest open level's cell size: smoother normals whose
-    gradients reach neighbouring cells, at about 4x the geometry cost)."""
+    """"analytic" (the grid's trilinear derivative) or "finite_difference" (four tetrahedral SDF
+    evaluations: smoother normals, about 4x the geometry cost)."""
     finite_difference_cells: float = 0.5
     """Step of the finite differences, in cells of the finest open level."""
 
@@ -89,11 +83,10 @@ class HashSDFField(Field):
         self._sphere_init()
 
     def _sphere_init(self) -> None:
-        """Start as the SDF of a sphere of ``init_radius``, computed from the raw coordinates while the
-        tables start near 0. With one hidden layer its units come in pairs +u_k, -u_k over directions
-        u_k spread evenly on the sphere (a Fibonacci lattice), so that the sum of softplus(+-u_k . x)
-        is about sum_k |u_k . x| = (width / 4) |x|; deeper networks take IGR's random initialisation.
-        The output bias is then set so that the sphere of ``init_radius`` is the zero level set."""
+        """Start as the SDF of a sphere of ``init_radius`` from the raw coordinates (the tables start near
+        0): one hidden layer gets unit pairs +-u_k over a Fibonacci lattice, so sum_k softplus(+-u_k . x)
+        ~ (width / 4) |x|; deeper networks take IGR's initialisation. The output bias puts the zero
+        level set on the sphere."""
         layers = list(self.sdf_net.hidden)
         out = self.sdf_net.out
         with torch.no_grad():
@@ -115,9 +108,6 @@ class HashSDFField(Field):
             out.bias[0] = -self.sdf_net(self._inputs(on_sphere))[:, 0].mean()
 
     # -- schedule -------------------------------------------------------------------------------
-    def active_levels(self, step: int, max_steps: int) -> int:
-        return self.config.active_levels(step, max_steps)
-
     def update_step(self, step: int, max_steps: int) -> None:
         active = self.config.active_levels(step, max_steps)
         self.encoding.set_active_levels(active)
@@ -179,7 +169,6 @@ class HashSDFField(Field):
 
     def decode_color(self, features: torch.Tensor) -> torch.Tensor:
         return self.color_net.head(features)
-
 
 
 def fibonacci_sphere(n: int) -> torch.Tensor:

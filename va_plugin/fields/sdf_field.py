@@ -71,14 +71,9 @@ class SDFField(Field):
         return out[..., :1], out[..., 1:]
 
     def geometry_and_gradient(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-        """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` in one pass.
-
-        The gradient is the chain rule written out: with z_k = W_k h_(k-1) + b_k and h_k = a(z_k),
-        dSDF/dh_(k-1) = (dSDF/dh_k * a'(z_k)) W_k, started from the SDF row of the output layer and
-        pulled back through the encoding. Every step is differentiable (once), so the loss's parameter
-        gradients (eikonal, normals) need one backward pass, not autograd's double backward. Without
-        grad mode (evaluation) nothing is recorded. Matches ``torch.autograd.grad`` of :meth:`sdf` to
-        float rounding."""
+        """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` in one pass
+        (:func:`mlp_with_input_gradient`, pulled back through the encoding): losses on the gradient need
+        one backward pass, not a double backward. Matches ``torch.autograd.grad`` to float rounding."""
         out, grad = mlp_with_input_gradient(self.sdf_net, self.position_encoding(positions))
         return out[..., :1], out[..., 1:], self.position_encoding.pull_back(positions, grad)
 
@@ -124,10 +119,8 @@ def _activation_and_slope(activation: nn.Module, z: torch.Tensor) -> Tuple[torch
 
 
 class _SoftplusAndSlope(torch.autograd.Function):
-    """h = softplus_beta(z) and s = dh/dz = sigmoid(beta z), as torch's Softplus defines them (linear,
-    slope 1, above ``threshold`` in units of beta z). One node instead of five: it keeps only s
-    (ds/dz = beta s (1 - s)) and allocates one temporary in backward, which matters on CPU, where every
-    fresh [points x width] buffer costs page faults."""
+    """h = softplus_beta(z) and s = dh/dz = sigmoid(beta z), as torch's Softplus defines them (linear
+    above ``threshold`` in units of beta z). One autograd node that keeps only s (ds/dz = beta s (1 - s))."""
 
     @staticmethod
     def forward(ctx, z: torch.Tensor, beta: float, threshold: float):

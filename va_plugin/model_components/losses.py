@@ -14,16 +14,13 @@ def rgb_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 GRADIENT_BOUND = 1e12
-"""SDF gradient components are clamped to +-1e12 in the eikonal loss, so a blown-up field gives a huge
-but finite loss (which the trainer's guard rolls back) instead of an overflow to inf and NaN gradients."""
+"""SDF gradient components are clamped to +-1e12 in the eikonal loss: a blown-up field gives a huge but
+finite loss (rolled back by the trainer's guard), not NaN gradients."""
 
 
 def eikonal_loss(gradients: torch.Tensor, valid: torch.Tensor | None = None) -> torch.Tensor:
-    """``mean (|grad sdf| - 1)^2`` over ``gradients [..., 3]`` (optionally only where ``valid [...]``).
-
-    The norm is taken as sqrt(sum^2 + 1e-12) so its gradient is finite at a zero gradient, and of the
-    components clamped to ``GRADIENT_BOUND`` so it cannot overflow.
-    """
+    """``mean (|grad sdf| - 1)^2`` over ``gradients [..., 3]`` (optionally only where ``valid [...]``); the
+    norm is sqrt(sum^2 + 1e-12) of the clamped components, finite in value and gradient."""
     gradients = gradients.clamp(-GRADIENT_BOUND, GRADIENT_BOUND)
     norm = torch.sqrt((gradients * gradients).sum(-1) + 1e-12)
     error = (norm - 1.0) ** 2
@@ -50,12 +47,10 @@ def normal_loss(rendered: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
 
 
 MSE_FLOOR = 1e-10
-"""PSNR's floor on the MSE: identical images score ``10 * log10(max_val**2 / 1e-10)`` (100 dB for images
-in [0, 1]) instead of an infinity that poisons averages."""
+"""PSNR's floor on the MSE: identical images score 100 dB (for images in [0, 1]), not infinity."""
 
 
 def psnr_from_mse(mse: torch.Tensor, max_val: float = 1.0) -> torch.Tensor:
     """PSNR in dB, ``10 * log10(max_val**2 / MSE)``, of images in ``[0, max_val]``, in the MSE's dtype,
-    with the MSE clamped at ``MSE_FLOOR`` (so at most 100 dB for ``max_val=1``). The one PSNR of the
-    package: training logs, evaluation, the consistency check and the benchmarks use it."""
+    with the MSE clamped at ``MSE_FLOOR``: the one PSNR of the package."""
     return -10.0 * torch.log10(mse.clamp_min(MSE_FLOOR)) + 20.0 * math.log10(max_val)

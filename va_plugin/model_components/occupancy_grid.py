@@ -1,18 +1,11 @@
 """An occupancy grid for skipping empty space, and the small marching helpers that use it.
 
-The grid is a ``R^3`` lattice of cells over the cube ``[-bound, bound]^3`` around the scene's bounding
-sphere. Each cell keeps a running value of how opaque it is: every update evaluates the density at one
-random point inside each cell (that meets the sphere), turns it into the opacity a ray gathers crossing
-one cell, ``1 - exp(-density * cell_size)``, and keeps ``max(decay * old, new)`` (a max with an
-exponential decay, so a cell that stops being dense fades out over a few updates). A cell is occupied
-when its value exceeds ``min(threshold, mean value)``; the mean keeps an untrained (or uniformly faint)
-field from being pruned empty. During the warm-up every cell counts as occupied, and updates overwrite
-the values instead of keeping the max, so the max-decay memory starts from the field as it is at the
-end of the warm-up.
-
-Samples in empty cells are dropped before the field is evaluated; :func:`scatter` moves
-values from the packed list of kept samples (``dense[keep]``) back to the dense ``[n_rays, n_samples]``
-layout.
+A ``R^3`` lattice over ``[-bound, bound]^3``. Each update evaluates the density at one random point per
+cell, turns it into the opacity across one cell, ``1 - exp(-density * cell_size)``, and keeps
+``max(decay * old, new)``. A cell is occupied when its value exceeds ``min(threshold, mean value)`` (the
+mean keeps a faint field from being pruned empty). During the warm-up every cell is occupied and
+updates overwrite the values. :func:`scatter` moves packed samples (``dense[keep]``) back to the dense
+``[n_rays, n_samples]`` layout.
 """
 
 from __future__ import annotations
@@ -44,8 +37,7 @@ class OccupancyGridConfig(InstantiateConfig):
     update_every: int = 16
     """Training steps between grid updates."""
     warmup_steps: int = 64
-    """Steps during which every cell counts as occupied (the field is still meaningless). InstantNGP
-    uses 256 of its 35k steps; 64 is enough for a coarse field under the mask loss here."""
+    """Steps during which every cell counts as occupied (the field is still meaningless)."""
     decay: float = 0.95
     """Factor applied to a cell's value at each update before the max with the new value."""
     threshold: float = 0.01
@@ -53,8 +45,7 @@ class OccupancyGridConfig(InstantiateConfig):
     threshold used is min(this, the mean over cells), so a faint field keeps its denser half."""
     min_view_fraction: float = 1.0
     """After the warm-up, a cell can be occupied only if its centre projects inside at least this share
-    of the training views (generated views each frame the whole object; density seen by one view alone
-    is a floater that explains that view's inconsistencies). 0 turns the test off."""
+    of the training views (density seen by one view alone is a floater). 0 turns the test off."""
 
 
 class OccupancyGrid(nn.Module):
@@ -129,8 +120,7 @@ class OccupancyGrid(nn.Module):
         opacity = 1.0 - torch.exp(-(density * self.cell_size).clamp_max(80.0))
         flat = self.values.view(-1)
         if step < self.config.warmup_steps:
-            # No memory of the untrained field: with decay 0.95 per update its early, uniform density
-            # would otherwise keep every cell occupied for ~20 updates after the warm-up.
+            # No memory of the untrained field's uniform density.
             flat[cells] = opacity
             self.binary.fill_(True)
             return
@@ -164,9 +154,7 @@ def transmittance_before(alpha: torch.Tensor) -> torch.Tensor:
 
 
 def scatter(packed: torch.Tensor, keep: torch.Tensor) -> torch.Tensor:
-    """Inverse of ``dense[keep]``: ``[n_kept, ...]`` -> ``[n_rays, n_samples, ...]``, zeros where not kept.
-
-    Differentiable w.r.t. ``packed``; an empty ``packed`` still yields a tensor in its graph.
-    """
+    """Inverse of ``dense[keep]``: ``[n_kept, ...]`` -> ``[n_rays, n_samples, ...]``, zeros where not kept;
+    differentiable w.r.t. ``packed`` (even an empty one)."""
     dense = packed.new_zeros(keep.shape + packed.shape[1:])
     return dense.index_put((keep,), packed)

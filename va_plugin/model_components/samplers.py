@@ -11,11 +11,8 @@ PDF_PADDING = 1e-5
 
 def uniform_edges(nears: torch.Tensor, fars: torch.Tensor, n_samples: int, jitter: bool,
                   generator: Optional[torch.Generator] = None) -> torch.Tensor:
-    """Sample positions ``[n_rays, n_samples]`` spread evenly in [near, far], jittered when training.
-
-    Args:
-        nears, fars: ``[n_rays, 1]``.
-    """
+    """Sample positions ``[n_rays, n_samples]`` spread evenly in [near, far] (``nears, fars [n_rays, 1]``),
+    jittered when training."""
     steps = torch.linspace(0.0, 1.0, n_samples + 1, device=nears.device)[:-1]
     steps = steps.expand(nears.shape[0], n_samples)
     if jitter:
@@ -28,14 +25,9 @@ def uniform_edges(nears: torch.Tensor, fars: torch.Tensor, n_samples: int, jitte
 
 def sample_pdf(bins: torch.Tensor, weights: torch.Tensor, n_samples: int, jitter: bool,
                generator: Optional[torch.Generator] = None) -> torch.Tensor:
-    """Draw ``n_samples`` positions per ray from the piecewise-constant PDF of ``weights``.
-
-    Args:
-        bins: ``[n_rays, n_bins + 1]`` sorted bin edges.
-        weights: ``[n_rays, n_bins]`` non-negative; padded by 1e-5 so an all-zero row is uniform.
-    Returns:
-        ``[n_rays, n_samples]`` positions inside [bins[0], bins[-1]].
-    """
+    """Draw ``n_samples`` positions ``[n_rays, n_samples]`` in [bins[0], bins[-1]] from the piecewise-constant
+    PDF of ``weights [n_rays, n_bins]`` (padded by 1e-5: an all-zero row is uniform) over the sorted bin
+    edges ``bins [n_rays, n_bins + 1]``."""
     weights = weights.detach() + PDF_PADDING
     pdf = weights / weights.sum(-1, keepdim=True)
     cdf = torch.cumsum(pdf, dim=-1)

@@ -1,10 +1,8 @@
 """The NGP density model (InstantNGP-style): a hash-grid density field rendered with an occupancy grid.
 
-Rays are sampled uniformly inside the bounding sphere. Samples in cells the occupancy grid marks empty
-are dropped before the field is evaluated; so are samples behind an opaque part of the ray (early
-termination, found by a cheap gradient-free pass over the kept samples). The field runs on the packed
-list of the remaining samples, whose density and colour are scattered back into the dense
-``[n_rays, n_samples]`` layout (zero density elsewhere) for volume rendering.
+Rays are sampled uniformly inside the bounding sphere; samples in empty cells, or behind an opaque part
+of the ray (found by a gradient-free pass), are dropped. The field runs on the packed remaining samples,
+scattered back to ``[n_rays, n_samples]`` (zero density elsewhere) for volume rendering.
 """
 
 from __future__ import annotations
@@ -51,9 +49,8 @@ class NGPModelConfig(ModelConfig):
     """Density of the extracted surface: the mesh is the level set density = threshold (mesh_field is
     threshold - density, negative inside)."""
     mesh_smoothing: float = 0.021
-    """Width (scene units, the std of a Gaussian) by which the occupancy is smoothed before the mesh is
-    extracted, since a density field trained on few views is rough at the voxel scale (0: not smoothed;
-    0.021 is 1.5 cells of a 128^3 grid over a 0.9 scene radius)."""
+    """Std (scene units) of the Gaussian that smooths the occupancy before the mesh is extracted (0: not
+    smoothed; 0.021 is 1.5 cells of a 128^3 grid over a 0.9 scene radius)."""
     fill_mesh_cavities: bool = True
     """Make empty space that is enclosed by the surface solid before the mesh is extracted (no camera
     sees it; a density shell leaves it behind its front wall)."""
@@ -131,11 +128,9 @@ class NGPModel(Model):
 
     @timed("sampling")
     def _samples_to_evaluate(self, samples: RaySamples) -> tuple[torch.Tensor, Optional[tuple]]:
-        """Which samples ``[n_rays, n_samples]`` the field must evaluate: inside the sphere, in an occupied
-        cell, and (with early termination) in front of the point where the ray turns opaque.
-
-        Also returns the gradient-free pass's (raw density, feature) of those samples when no gradient
-        is needed, so they are not evaluated twice."""
+        """Which samples ``[n_rays, n_samples]`` the field must evaluate (inside the sphere, occupied, in
+        front of where the ray turns opaque), and the gradient-free pass's (raw density, feature) of
+        them when no gradient is needed."""
         keep = samples.deltas > 0
         if self.occupancy_grid is not None:
             keep &= self.occupancy_grid.occupied(samples.positions)
@@ -193,7 +188,7 @@ class NGPModel(Model):
     @torch.no_grad()
     def mesh_field(self, points: torch.Tensor) -> torch.Tensor:
         """``density_threshold - density``; cells the occupancy grid marks empty count as empty, as in
-        rendering (density left in them, e.g. from the warm-up, is never rendered or trained)."""
+        rendering."""
         density = self.density(points)
         if self.occupancy_grid is not None:
             density = density * self.occupancy_grid.occupied(points)
@@ -202,10 +197,8 @@ class NGPModel(Model):
     def prepare_mesh_grid(self, values: np.ndarray, spacing: float) -> np.ndarray:
         """``mesh_field`` sampled on a grid ``[R, R, R]`` with cells ``spacing`` wide -> the grid marching
         cubes runs on: unchanged, or with ``mesh_smoothing`` a Gaussian-smoothed occupancy
-        ``-tanh(log(density / threshold) / 2)``. That is -1 deep inside, +1 in empty space and 0 at the
-        threshold, a step symmetric about the surface, so smoothing it removes voxel-scale bumps without
-        moving a flat surface (smoothing the log density itself would: its two sides are not symmetric
-        about log(threshold), so the level set would shift towards the denser side)."""
+        ``-tanh(log(density / threshold) / 2)``: a step symmetric about the surface (-1 inside, +1
+        outside), so smoothing it does not move a flat surface."""
         width = self.config.mesh_smoothing
         if width <= 0:
             return values

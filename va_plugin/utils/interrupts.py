@@ -1,15 +1,9 @@
 """Holding back Ctrl-C while code that swallows it runs, and SIGTERM taken like Ctrl-C.
 
-trimesh imports its optional dependencies inside ``try: ... except BaseException``: a KeyboardInterrupt
-that lands during ``import trimesh`` is caught there, the interrupted module is replaced by a stand-in
-that fails later, and the program carries on as if no Ctrl-C had come (a benchmark interrupted two
-seconds after its start ran to the end and exited 0). Inside :func:`interrupt_deferred` a SIGINT only
-sets a flag; the KeyboardInterrupt is raised when the block ends.
-
-``kill PID`` (SIGTERM, also what batch systems send at a time limit) would by default end a command at
-once: no checkpoint, and a benchmark's worker processes left running their rows for up to an hour with
-nobody to send them to. Inside :func:`terminate_as_interrupt` it raises KeyboardInterrupt instead, so it
-takes Ctrl-C's way out (the training saves a checkpoint; the workers are interrupted and waited for).
+Some imports (trimesh, open3d) catch a KeyboardInterrupt and carry on broken; inside
+:func:`interrupt_deferred` a SIGINT only sets a flag, raised when the block ends. Inside
+:func:`terminate_as_interrupt` SIGTERM (``kill``, batch time limits) raises KeyboardInterrupt, so it
+takes Ctrl-C's way out (a checkpoint is saved, workers are interrupted and waited for).
 """
 
 from __future__ import annotations

@@ -1,6 +1,5 @@
-"""Up-front memory estimates for requests whose size the user picks (a marching-cubes grid, a render
-scale, a texture size), so an impossible request is refused with the largest value that fits instead of
-ending in a traceback from the allocator minutes later."""
+"""Up-front memory estimates for sizes the user picks (a marching-cubes grid, a render scale, a texture
+size): an impossible request is refused with the largest value that fits."""
 
 from __future__ import annotations
 
@@ -10,15 +9,12 @@ import os
 from va_plugin.errors import ConfigError
 
 GRID_BYTES_PER_VOXEL = 128
-"""Peak bytes per grid point of mesh extraction (field values, the bound check's float64 radii and masks,
-marching cubes' own copies): measured 116 B/voxel between resolutions 64 and 256 (peak RSS), rounded up."""
+"""Peak bytes per grid point of mesh extraction (field values, masks, marching cubes' own copies)."""
 RENDER_BYTES_PER_PIXEL = 512
-"""Peak bytes per pixel of a render: pixel indices, the gathered camera matrices and rays of the whole
-image, the collected outputs, the target resized next to it and the written pair."""
+"""Peak bytes per pixel of a render (indices, rays, outputs, the resized target, the written pair)."""
 BAKE_BYTES_PER_TEXEL = 96
 BAKE_BYTES_PER_TEXEL_VIEW = 40
-"""Texture baking: per texel the surface point, normal, UV raster and image; per texel and view the
-projected colour, weight, residual and the medoid's distances."""
+"""Texture baking: bytes per texel, and per texel and view."""
 USABLE_SHARE = 0.8
 """Share of the available memory a request may plan to use (the rest is for the process around it)."""
 

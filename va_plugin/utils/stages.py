@@ -1,15 +1,9 @@
-"""Wall time per named stage of a training step (the speed benchmark's breakdown, issue 9).
+"""Wall time per named stage of a training step (the speed benchmark's breakdown).
 
-Code marks its stages with ``with stage("sampling"): ...`` or the ``@timed("sampling")`` decorator, and
-:func:`time_modules` can time every call of chosen submodules (encodings, MLP layers) through forward
-hooks. Nothing is recorded unless a :func:`recording` is open: a marker then costs one global lookup.
-
-Times are *exclusive*: a stage opened inside another is subtracted from the outer one (an encoding
-evaluated during sampling counts as encoding, not as sampling), so the stages of a step add up to at
-most the step's wall time. Inclusive times (a stage with everything nested in it) are kept as well.
-With ``synchronize=True`` (CUDA) the device is synchronized at every stage boundary, so that a stage is
-charged for the kernels it launched; this slows the step a little, so time steps for throughput with
-recording off.
+Code marks stages with ``with stage("sampling"): ...`` or ``@timed("sampling")``; :func:`time_modules`
+times chosen submodules through forward hooks. Nothing is recorded unless a :func:`recording` is open.
+Times are *exclusive* (nested stages are subtracted from the outer one); inclusive times are kept too.
+``synchronize=True`` (CUDA) synchronizes at every stage boundary, so a stage is charged for its kernels.
 """
 
 from __future__ import annotations

@@ -16,25 +16,15 @@ from va_plugin.data.images import resize
 
 @dataclass
 class DataparserOutputs:
-    """One split of a scene.
+    """One split of a scene."""
 
-    Attributes:
-        images: ``[n, H, W, 3]`` float in [0, 1], already composited on ``background``.
-        masks: ``[n, H, W, 1]`` foreground in [0, 1], or None when the inputs carry no mask.
-        cameras: the ``n`` cameras.
-        scene_radius: radius of the bounding sphere at the origin that holds the object.
-        background: RGB the images are composited on.
-        image_paths: where each image came from (for messages).
-        metadata: anything else the source knows (ground-truth mesh path, scene.json contents, ...).
-    """
-
-    images: torch.Tensor
-    masks: Optional[torch.Tensor]
+    images: torch.Tensor  # [n, H, W, 3] float in [0, 1], composited on ``background``
+    masks: Optional[torch.Tensor]  # [n, H, W, 1] foreground in [0, 1], or None
     cameras: Cameras
-    scene_radius: float
+    scene_radius: float  # of the bounding sphere at the origin that holds the object
     background: Tuple[float, float, float]
-    image_paths: List[Path] = field(default_factory=list)
-    metadata: Dict[str, Any] = field(default_factory=dict)
+    image_paths: List[Path] = field(default_factory=list)  # for messages
+    metadata: Dict[str, Any] = field(default_factory=dict)  # anything else the source knows
 
     def __len__(self) -> int:
         return self.images.shape[0]

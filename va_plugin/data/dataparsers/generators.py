@@ -1,12 +1,10 @@
 """Dataparsers for the raw outputs of multi-view generators: SyncDreamer, Zero123++ and Wonder3D.
 
-Each reads the generator's own file layout, gives its views the generator's fixed cameras
-(:mod:`va_plugin.data.rigs`), finds a foreground mask per view (the user's masks, else the image's alpha,
-else a colour key on the flat background: :mod:`va_plugin.data.foreground`) and composites the views on
-the configured background. The object must end up in the unit box at the origin, the scale the models
-are tuned for: SyncDreamer's rig already puts it there; for the other rigs the visual hull of the masks
-is measured and the cameras are moved and scaled to put its box there (``normalize = "silhouettes"``).
-The hull's per-view silhouette IoU is kept in the metadata as a check of the rig.
+Each reads the generator's file layout, gives its views the generator's fixed cameras
+(:mod:`va_plugin.data.rigs`), finds a mask per view (the user's masks, else alpha, else a colour key:
+:mod:`va_plugin.data.foreground`) and composites the views on the background. With ``normalize =
+"silhouettes"`` the cameras are moved and scaled so the masks' visual hull fills the unit box; the hull's
+per-view silhouette IoU is kept in the metadata as a check of the rig.
 """
 
 from __future__ import annotations
@@ -30,7 +28,7 @@ from va_plugin.errors import ConfigError, DataError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
 NORMALIZE_MODES = ("rig", "silhouettes")
-LOW_SILHOUETTE_IOU = 0.8  # below this mean the rig does not explain the views (real outputs on their rig: 0.86-0.94)
+LOW_SILHOUETTE_IOU = 0.8  # below this mean the rig does not explain the views
 
 SYNCDREAMER_LAYOUT = "one image of 16 square views side by side in azimuth order, 256 high x 4096 wide"
 ZERO123PP_LAYOUT = "one image of 3 rows x 2 columns of square views in row-major order, 640 wide x 960 high"

@@ -146,10 +146,9 @@ class TransformsDataParser(DataParser):
             raise DataError(f"contradictory scene radius: {json_path.name} says {radius:g}, the options say "
                             f"{chosen:g}; change scene_radius in the json, or drop the option")
         metadata = {"json": str(json_path)}
-        scene_root = json_path.parent
-        for name in ("scene.json",):
-            if (scene_root / name).is_file():
-                metadata["scene"] = _load_json(scene_root / name)
+        scene_file = json_path.parent / "scene.json"
+        if scene_file.is_file():
+            metadata["scene"] = _load_json(scene_file)
         return DataparserOutputs(
             images=torch.from_numpy(images_np).float(),
             masks=torch.from_numpy(masks_np).float() if masks_np is not None else None,

@@ -3,14 +3,12 @@
 A scene folder holds:
 
 * ``transforms_train.json``: the input views (possibly inconsistent) with their NOMINAL cameras;
-* ``transforms_test.json``: clean held-out views (other rig views, plus off-orbit views for sources we
-  can render); absent when no view is held out (16 GSO inputs);
-* ``images/``: RGBA PNGs ``train_XXX.png`` (inputs), ``clean_XXX.png`` (the clean inputs, for
-  reference and figures) and ``test_XXX.png``, XXX being the view id;
+* ``transforms_test.json``: clean held-out views (absent when none is held out);
+* ``images/``: RGBA PNGs ``train_XXX.png`` (inputs), ``clean_XXX.png`` (clean inputs) and
+  ``test_XXX.png``, XXX being the view id;
 * ``mesh.ply``: the ground-truth mesh in the same world frame;
-* ``scene.json``: source, rig, inconsistency kinds, level and seed, and the measured size of the injected
-  errors (per input view: PSNR and, when its weights are installed, LPIPS of the 8-bit input against the
-  8-bit clean view, both composited on white; plus means over the perturbed views).
+* ``scene.json``: source, rig, inconsistency and seed, and the injected errors (per input view: PSNR
+  and LPIPS of the 8-bit input against the clean view, composited on white).
 
 The same arguments always give the same bytes.
 """
@@ -124,8 +122,8 @@ def build_scene(out_dir: Path, source: str = "procedural:mug", n_views: int = 4,
     Args:
         source: ``procedural:NAME``, ``mesh:PATH`` or ``gso:NAME`` (with ``data_root``).
         n_views: input views, uniform in azimuth from view 0 (4, 8, 12 or 16 in the paper's sweep).
-        level, kinds, seed: the inconsistency (see :mod:`inconsistency`). View 0 stays clean unless
-            ``perturb_first_view``: real generators condition on it, so it is their most faithful view.
+        level, kinds, seed: the inconsistency (see :mod:`inconsistency`). View 0 (a generator's
+            conditioning view) stays clean unless ``perturb_first_view``.
         test_views: positions in the held-out list to keep (default: all of it).
         up_axis, yaw_deg, texture: how to read a ``mesh:`` source.
     """

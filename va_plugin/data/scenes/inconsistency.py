@@ -2,18 +2,14 @@
 
 Kinds (switchable separately):
 
-* ``geometric``: a smooth per-view deformation. Rendered sources move the mesh's vertices by a
-  low-frequency random displacement field before rendering; image sources (GSO) warp the image by the
-  same kind of field in image space, with world units converted to pixels at the object's centre.
-* ``appearance``: the generator's softness (a slight blur), a per-view colour gain and offset, and a few
-  hallucinated texture blobs (ragged patches of plausible colours borrowed from elsewhere on the object,
-  like those SyncDreamer paints on back views), on the object only; alpha is untouched.
-* ``pose``: the view seen from a slightly wrong orbit position (azimuth, elevation, roll). The written
-  camera stays the nominal one. Image sources are reprojected through the aligned mesh's depth.
+* ``geometric``: a smooth low-frequency displacement of the mesh (rendered sources) or of the image
+  (image sources).
+* ``appearance``: a slight blur, a per-view colour gain and offset, and a few hallucinated texture
+  blobs, on the object only.
+* ``pose``: the view seen from a slightly wrong orbit position; the written camera stays nominal.
 
-Levels 0-3 scale one set of random draws per view (0: none, byte-identical to the clean render), so a
-higher level is the same error, only larger. Every draw comes from ``(seed, rig view, kind)``: a view
-perturbs the same way whatever the number of input views or the other kinds switched on.
+Levels 0-3 scale one set of random draws per view (0: the clean render). Every draw comes from
+``(seed, rig view, kind)``, independent of the view count and the other kinds.
 """
 
 from __future__ import annotations
@@ -34,8 +30,8 @@ _KIND_STREAM = {"geometric": 1, "appearance": 2, "pose": 3}
 
 @dataclass(frozen=True)
 class Amplitudes:
-    """Level-2 sizes, calibrated so that all three kinds together score about PSNR 25 dB and LPIPS 0.07
-    against the clean render at 256 px (real SyncDreamer views against ground truth)."""
+    """Level-2 sizes: all three kinds together score about PSNR 25 dB and LPIPS 0.07 against the clean
+    render at 256 px, like real SyncDreamer views."""
 
     displacement: float = 0.0065      # RMS vertex displacement, world units (objects are 1 unit large)
     cycles: Tuple[float, float] = (0.5, 1.5)  # spatial frequency range of the field, cycles per unit
@@ -102,17 +98,11 @@ def stream(seed: int, view: int, kind: str) -> np.random.Generator:
 
 @dataclass
 class DisplacementField:
-    """A smooth random field ``d(x) = sum_k a_k sin(2 pi f_k . x + phi_k)`` in ``dim`` dimensions.
+    """A smooth random field ``d(x) = sum_k a_k sin(2 pi f_k . x + phi_k)`` in ``dim`` dimensions."""
 
-    Attributes:
-        frequencies: ``[m, dim]`` cycles per unit.
-        phases: ``[m]``.
-        amplitudes: ``[m, dim]``, scaled so that the field's RMS over random positions is ``rms``.
-    """
-
-    frequencies: np.ndarray
-    phases: np.ndarray
-    amplitudes: np.ndarray
+    frequencies: np.ndarray  # [m, dim] cycles per unit
+    phases: np.ndarray  # [m]
+    amplitudes: np.ndarray  # [m, dim], scaled so the field's RMS over random positions is ``rms``
 
     @staticmethod
     def draw(rng: np.random.Generator, dim: int, rms: float, amp: Amplitudes = AMPLITUDES) -> "DisplacementField":

@@ -1,10 +1,7 @@
 """Textured mesh files (OBJ, PLY, GLB...) as benchmark objects.
 
-A mesh is turned z-up (``up_axis``: OBJ files are usually y-up, as Spot the cow is), optionally turned
-about z by ``yaw_deg``, then normalised like SyncDreamer's and GSO's objects: the largest side of its
-bounding box scaled to 1 and the box centred at the origin, so it fits [-0.5, 0.5]^3.
-Its albedo is the texture image sampled at the hit point's interpolated UV; without UVs or an image it is
-the mesh's vertex colours, or a plain light grey.
+A mesh is turned z-up (``up_axis``), turned about z by ``yaw_deg`` and normalised to fit [-0.5, 0.5]^3
+(largest side 1, centred). Its albedo is the texture at the hit's UV, else the vertex colours, else grey.
 """
 
 from __future__ import annotations

@@ -1,7 +1,6 @@
 """Rendering meshes with open3d's ray caster (CPU): RGBA images with anti-aliased edges.
 
-Materials see the *rest* surface: a renderer built on deformed vertices (the geometric inconsistency)
-still colours each hit by where it lies on the undeformed mesh, so the texture moves with the surface.
+Materials see the *rest* surface, so on deformed vertices the texture moves with the surface.
 """
 
 from __future__ import annotations
@@ -27,17 +26,11 @@ AMBIENT = 0.45
 
 @dataclass
 class SurfaceHits:
-    """Where ``n`` rays hit a mesh.
+    """Where ``n`` rays hit a mesh."""
 
-    Attributes:
-        points: ``[n, 3]`` hit positions on the rest (undeformed) mesh.
-        corners: ``[n, 3]`` vertex ids of the hit triangles.
-        barycentric: ``[n, 3]`` weights of those corners.
-    """
-
-    points: np.ndarray
-    corners: np.ndarray
-    barycentric: np.ndarray
+    points: np.ndarray  # [n, 3] hit positions on the rest (undeformed) mesh
+    corners: np.ndarray  # [n, 3] vertex ids of the hit triangles
+    barycentric: np.ndarray  # [n, 3] weights of those corners
 
 
 Albedo = Callable[[SurfaceHits], np.ndarray]
@@ -82,13 +75,9 @@ def smooth_vertex_normals(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray
 
 
 class MeshRenderer:
-    """Casts rays against a triangle mesh and shades hits with a fixed world light.
-
-    Args:
-        mesh: the rest mesh (its vertices are what ``albedo`` sees).
-        albedo: ``SurfaceHits -> [n, 3]`` colours in [0, 1].
-        vertices: optional ``[v, 3]`` deformed positions of the same vertices, used for the geometry.
-    """
+    """Casts rays against a triangle mesh and shades hits with a fixed world light. ``albedo``
+    (``SurfaceHits -> [n, 3]`` in [0, 1]) sees the rest ``mesh``; optional deformed ``vertices [v, 3]``
+    give the geometry."""
 
     def __init__(self, mesh: trimesh.Trimesh, albedo: Albedo, vertices: Optional[np.ndarray] = None) -> None:
         self.mesh = mesh

@@ -2,14 +2,9 @@
 lives in :mod:`va_plugin.data.rigs`.
 
 16 views at azimuth k * 22.5 deg, elevation 30 deg, distance 1.5, z-up world, looking at the origin;
-K = [[280, 0, 128], [0, 280, 128], [0, 0, 1]] at 256 x 256. Camera 0 sits on +x at (1.299, 0, 0.75).
-The paper's 4-view input is views 0, 4, 8, 12.
-
-Half-pixel convention: SyncDreamer's code projects with ``K @ X_cam`` and no offset (``pixel_offset 0``,
-the default here). The ground-truth GSO renders, however, were made with pixel centres at +0.5 (Blender's
-convention): ray-casting their aligned meshes with ``pixel_offset 0.5`` reproduces every render's
-``alpha > 0.5`` mask pixel for pixel, while ``pixel_offset 0`` misses 250-370 pixels per view. Benchmark
-scenes are therefore written with :data:`SCENE_PIXEL_OFFSET` (0.5) for every source.
+K = [[280, 0, 128], [0, 280, 128], [0, 0, 1]] at 256 x 256. The paper's 4-view input is views 0, 4, 8, 12.
+SyncDreamer projects with no half-pixel offset, but the GSO renders have pixel centres at +0.5 (their
+masks match only then), so benchmark scenes use :data:`SCENE_PIXEL_OFFSET` (0.5) for every source.
 """
 
 from __future__ import annotations
@@ -20,7 +15,7 @@ from va_plugin.cameras import Cameras
 from va_plugin.data.rigs import (RIG_DISTANCE, RIG_ELEVATION_DEG, RIG_FOCAL_256, RIG_VIEWS,  # noqa: F401
                                  input_view_ids, orbit_cameras, syncdreamer_rig)
 
-SCENE_PIXEL_OFFSET = 0.5  # measured on the GSO renders, see the module docstring
+SCENE_PIXEL_OFFSET = 0.5
 # Held-out views off the rig's orbit, for sources we can render: below and above the inputs' elevation.
 EXTRA_TEST_VIEWS: Tuple[Tuple[float, float], ...] = tuple(
     (azimuth, elevation) for elevation in (0.0, 45.0) for azimuth in (45.0, 135.0, 225.0, 315.0))

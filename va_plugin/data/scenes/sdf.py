@@ -71,11 +71,8 @@ def sd_cone_frustum(p: np.ndarray, r_bottom: float, r_top: float, half_height: f
 
 
 def sd_polyline_tube(curve: np.ndarray, radius: float, reach: float = 0.1) -> SDF:
-    """Tube of ``radius`` around a densely sampled closed curve ``[m, 3]``.
-
-    Distance to the nearest curve sample stands in for distance to the curve (exact to
-    ``spacing^2 / (8 radius)``); points beyond ``reach`` are clamped there, which keeps the query fast.
-    """
+    """Tube of ``radius`` around a densely sampled closed curve ``[m, 3]``: distance to the nearest curve
+    sample (exact to ``spacing^2 / (8 radius)``), clamped at ``reach`` to keep the query fast."""
     tree = cKDTree(curve)
 
     def sdf(p: np.ndarray) -> np.ndarray:
@@ -104,12 +101,9 @@ def _grid_points(axis: np.ndarray, ids: Sequence[np.ndarray]) -> np.ndarray:
 
 
 def sample_sdf_grid(sdf: SDF, axis: np.ndarray, coarse_step: int = 4) -> np.ndarray:
-    """``sdf`` on the grid ``axis^3`` ``[r, r, r]``, evaluated exactly only in a band around the surface.
-
-    A grid ``coarse_step`` times coarser is evaluated first; a fine point whose nearest coarse sample is
-    farther from the surface than the distance between them (SDFs are 1-Lipschitz, with a safety factor)
-    cannot be near a sign change, and keeps that sample's clamped value. This is 4-5x faster.
-    """
+    """``sdf`` on the grid ``axis^3`` ``[r, r, r]``, evaluated exactly only in a band around the surface:
+    a point whose nearest sample of a ``coarse_step`` times coarser grid is farther from the surface than
+    from it (SDFs are 1-Lipschitz) keeps that sample's clamped value."""
     r = len(axis)
     spacing = float(axis[1] - axis[0])
     coarse_ids = np.arange(0, r, coarse_step)
@@ -125,18 +119,14 @@ def sample_sdf_grid(sdf: SDF, axis: np.ndarray, coarse_step: int = 4) -> np.ndar
 
 
 def mesh_from_sdf(sdf: SDF, resolution: int = 160, bound: float = 0.55) -> trimesh.Trimesh:
-    """Marching cubes of the zero level set of ``sdf`` on a ``resolution^3`` grid over [-bound, bound]^3.
-
-    The object must stay inside the grid (the box [-0.5, 0.5]^3 leaves a margin) so that the surface is
-    closed; the result is watertight and its normals point outwards.
-    """
+    """Marching cubes of the zero level set of ``sdf`` on a ``resolution^3`` grid over [-bound, bound]^3:
+    watertight with outward normals when the object stays inside the grid."""
     from skimage.measure import marching_cubes
 
     axis = np.linspace(-bound, bound, resolution, dtype=np.float32)
     values = sample_sdf_grid(sdf, axis)
     spacing = (2 * bound) / (resolution - 1)
-    # A face lying on a grid plane gives (near-)zero samples, on which marching cubes emits coincident
-    # vertices that merge into non-manifold edges; nudging them outside moves the surface by 1/1000 of a cell.
+    # (Near-)zero samples make marching cubes emit coincident vertices (non-manifold edges): nudge them out.
     eps = 1e-3 * spacing
     values[np.abs(values) < eps] = eps
     verts, faces, _, _ = marching_cubes(values, level=0.0, spacing=(spacing,) * 3)

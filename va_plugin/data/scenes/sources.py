@@ -29,11 +29,8 @@ SOURCE_KINDS = ("procedural", "mesh", "gso")
 
 
 def perturbed_camera(cameras: Cameras, index: int, orbit_deg) -> Cameras:
-    """View ``index`` moved on its orbit around the origin by ``(d_azimuth, d_elevation, roll)`` degrees.
-
-    Returns a one-camera :class:`Cameras` with the view's intrinsics; the camera still looks at the origin
-    before the roll about its optical axis.
-    """
+    """View ``index`` moved on its orbit around the origin by ``(d_azimuth, d_elevation, roll)`` degrees,
+    as a one-camera :class:`Cameras` looking at the origin (before the roll)."""
     d_az, d_el, roll = (math.radians(float(v)) for v in orbit_deg)
     eye = cameras.c2w[index, :, 3].double()
     distance = float(eye.norm())
@@ -58,6 +55,7 @@ class SceneSource:
     description: str
     ground_truth: trimesh.Trimesh
     renderable: bool  # False: only the 16 rig views exist
+    _info: Dict[str, Any] = {}
 
     def clean(self, cameras: Cameras, view: int) -> np.ndarray:
         """Straight-alpha RGBA ``[H, W, 4]`` of view ``view``."""
@@ -69,7 +67,7 @@ class SceneSource:
 
     def info(self) -> Dict[str, Any]:
         """Extra facts for scene.json."""
-        return {}
+        return dict(self._info)
 
 
 class RenderedSource(SceneSource):
@@ -93,9 +91,6 @@ class RenderedSource(SceneSource):
         camera = cameras.subset([view]) if p.orbit_deg is None else perturbed_camera(cameras, view, p.orbit_deg)
         return apply_appearance(renderer.render(camera, 0), p)
 
-    def info(self) -> Dict[str, Any]:
-        return dict(self._info)
-
 
 class ImageSource(SceneSource):
     """Fixed renders on the rig ``[16, H, W, 4]`` with an aligned mesh; perturbed by resampling."""
@@ -113,12 +108,8 @@ class ImageSource(SceneSource):
         return self.images[view]
 
     def pose_map(self, cameras: Cameras, view: int, orbit_deg) -> np.ndarray:
-        """For each pixel of the perturbed view, where it lies in the nominal view ``[H, W, 2]``.
-
-        Pixels hit the aligned mesh; the others borrow the ray distance of the nearest hit (the renders'
-        silhouettes reach a little past the mesh's), so every pixel moves with a plausible depth.
-        Surfaces hidden in the nominal view take the colour of what hides them: small at these angles.
-        """
+        """For each pixel of the perturbed view, where it lies in the nominal view ``[H, W, 2]``, through
+        the aligned mesh's depth (pixels that miss borrow the nearest hit's ray distance)."""
         camera = perturbed_camera(cameras, view, orbit_deg)
         origins, directions = self.depth_renderer.pixel_rays(camera, 0, 0.0, 0.0)
         t, _, _ = self.depth_renderer.cast(origins, directions)
@@ -149,9 +140,6 @@ class ImageSource(SceneSource):
         coords = self.sampling_map(cameras, view, p)
         image = self.images[view] if coords is None else remap_rgba(self.images[view], coords)
         return apply_appearance(image, p)
-
-    def info(self) -> Dict[str, Any]:
-        return dict(self._info)
 
 
 def split_spec(spec: str):

@@ -1,28 +1,17 @@
 """Multiresolution hash encoding (Müller et al. 2022, "Instant Neural Graphics Primitives"), pure PyTorch.
 
-A point is looked up in ``L`` grids of growing resolution. Coarse levels whose dense vertex grid fits
-in the table are indexed directly (no collisions); finer levels hash their vertices into ``T``
-entries. Each level trilinearly interpolates the features at the 8 corners of the cell holding the
-point, and the levels are concatenated.
+A point is looked up in ``L`` grids of growing resolution: coarse levels whose vertices fit in the
+table are indexed directly, finer ones hash their vertices into ``T`` entries. Each level trilinearly
+interpolates its cell's 8 corner features; the levels are concatenated.
 
-All levels live in one ``[total_entries, F]`` table with per-level offsets, so one gather (per
-feature column) serves every level in the forward pass and one ``index_add_`` every level and
-feature in the backward pass. The work is vectorised over levels and corners. Tensors are laid out
-feature-, level- and corner-major (``[F, n_levels, 8, n_points]``): every broadcast then runs along
-the long, contiguous point axis (8x faster on CPU than broadcasting over trailing dimensions of size
-2), and each level's part of a gather or scatter stays inside that level's slice of the table,
-which keeps it in cache.
+All levels share one ``[total_entries, F]`` table with per-level offsets, so one gather and one
+``index_add_`` serve every level. Tensors are laid out ``[F, n_levels, 8, n_points]`` so broadcasts run
+along the long, contiguous point axis. On CPU points go in chunks of :data:`CPU_CHUNK_POINTS` so the
+allocator recycles the temporaries.
 
-On CPU the points are processed in chunks (:data:`CPU_CHUNK_POINTS`): a chunk's temporaries are
-recycled by the allocator instead of being fresh, page-faulting allocations of hundreds of MB. On
-CUDA the whole batch is one chunk.
-
-Gradients: a custom autograd function gives the table and the input points first-order gradients
-from an analytic backward pass that recomputes the corners instead of saving them. A second-order
-gradient (an eikonal loss back-propagated through ``autograd.grad(..., create_graph=True)``) falls
-back to plain autograd over the whole batch: correct, but slower and memory-hungry. Input gradients
-are zero outside ``[-bound, bound]`` (points are clamped) and, as in every grid encoding,
-discontinuous across cell faces.
+Gradients: a custom autograd function gives first-order gradients from an analytic backward that
+recomputes the corners; a second-order gradient (``create_graph=True``) falls back to plain autograd.
+Input gradients are zero outside ``[-bound, bound]`` (points are clamped).
 """
 
 from __future__ import annotations
@@ -39,8 +28,8 @@ from va_plugin.errors import ConfigError
 # Per-axis multipliers of the spatial hash (Teschner et al. 2003, as used by InstantNGP).
 HASH_PRIMES = (1, 2654435761, 805459861)
 
-# Points per chunk on CPU: its largest temporary, [16 levels, 8, chunk] int64, is 16 MB, below
-# glibc's 32 MB mmap threshold, so it is recycled. Measured with benchmarks/bench_hash_grid.py.
+# Points per chunk on CPU: the largest temporary, [16 levels, 8, chunk] int64, stays below glibc's
+# 32 MB mmap threshold, so it is recycled.
 CPU_CHUNK_POINTS = 16384
 
 
@@ -98,17 +87,10 @@ def normalise_points(x: torch.Tensor, bound: float) -> torch.Tensor:
 
 
 def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
-    """The cell holding each point on each level and the point's position inside it.
-
-    Args:
-        x01: ``[n_points, 3]`` points in ``[0, 1]``.
-        resolutions: ``[n_levels]`` int64 cells per axis.
-
-    Returns:
-        ``cell`` ``[n_levels, 3, n_points]`` int64 lower corner in ``[0, N_l - 1]`` (a point at 1 falls
-        in the last cell with fraction 1), and ``frac`` ``[n_levels, 3, n_points]`` in ``[0, 1]``,
-        differentiable w.r.t. ``x01``.
-    """
+    """The cell holding each point ``x01 [n_points, 3]`` (in ``[0, 1]``) on each level (``resolutions
+    [n_levels]`` int64): ``cell [n_levels, 3, n_points]`` int64 lower corner in ``[0, N_l - 1]`` (a point
+    at 1 falls in the last cell with fraction 1) and ``frac [n_levels, 3, n_points]`` in ``[0, 1]``,
+    differentiable w.r.t. ``x01``."""
     pos = x01.t()[None] * resolutions.to(x01.dtype)[:, None, None]
     upper = (resolutions - 1)[:, None, None]
     # Clamping the integers (not the floats) also keeps NaN inputs from producing stray indices.
@@ -117,16 +99,9 @@ def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> Tuple[torch.Te
 
 
 def corner_indices(cell: torch.Tensor, levels: GridLevels) -> torch.Tensor:
-    """Index of the 8 corners of each cell within its level's table, in ``[0, level size)``.
-
-    Corner ``c = 4 i + 2 j + k`` is the vertex ``cell + (i, j, k)``.
-
-    Args:
-        cell: ``[n_levels, 3, n_points]`` int64 lower cell corners.
-
-    Returns:
-        ``[n_levels, 8, n_points]`` int64.
-    """
+    """Index ``[n_levels, 8, n_points]`` int64 of the 8 corners of each cell (``cell [n_levels, 3,
+    n_points]`` int64 lower corners) within its level's table; corner ``4 i + 2 j + k`` is the vertex
+    ``cell + (i, j, k)``."""
     axis_steps = torch.arange(2, device=cell.device)[:, None]
     # [n_levels, 3, 2, n_points]: each axis' two vertex coordinates times that axis' multiplier.
     terms = (cell[:, :, None, :] + axis_steps) * levels.multipliers[:, :, None, None]
@@ -166,11 +141,8 @@ def _corners(x01: torch.Tensor, levels: GridLevels) -> Tuple[torch.Tensor, torch
 
 
 def _gather(table: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
-    """Corner features ``[F, n_levels, 8, n_points]`` for table rows ``[n_levels, 8, n_points]``.
-
-    Feature-major so that the weighting broadcasts along the long point axis; gathering one table
-    column at a time is also faster on CPU than gathering rows of ``F`` values.
-    """
+    """Corner features ``[F, n_levels, 8, n_points]`` for table rows ``[n_levels, 8, n_points]``, gathered
+    one table column at a time."""
     flat = indices.reshape(-1)
     columns = [table[:, f].index_select(0, flat) for f in range(table.shape[1])]
     return torch.stack(columns).view(table.shape[1], *indices.shape)
@@ -184,9 +156,8 @@ def encode_points(x01: torch.Tensor, table: torch.Tensor, levels: GridLevels) ->
 
 
 def _frac_gradient(corner_grad: torch.Tensor, frac: torch.Tensor) -> torch.Tensor:
-    """Gradient w.r.t. ``frac`` ``[n_levels, 3, n_points]`` given the gradient w.r.t. the corner
-    weights ``[n_levels, 8, n_points]``: the derivative of a trilinear weight along one axis is the
-    product of the other two axes' weights, with sign + for the upper and - for the lower vertex."""
+    """Gradient w.r.t. ``frac`` ``[n_levels, 3, n_points]`` from the gradient w.r.t. the corner weights
+    ``[n_levels, 8, n_points]`` (a weight's derivative along an axis: the other two axes' weights, signed)."""
     g = corner_grad.unflatten(1, (2, 2, 2))
     w = axis_weights(frac)
     wx, wy, wz = w[:, 0], w[:, 1], w[:, 2]
@@ -248,13 +219,9 @@ def _backward_chunk(
     grad_table: Optional[torch.Tensor],
     need_x: bool,
 ) -> Optional[torch.Tensor]:
-    """Accumulate one chunk's table gradient into ``grad_table`` ``[total_entries, F]`` (if given)
-    and return its point gradient ``[n_points, 3]`` (if ``need_x``).
-
-    Args:
-        x01: ``[n_points, 3]``.
-        grad_out: ``[n_points, n_levels * F]``.
-    """
+    """Accumulate one chunk's table gradient into ``grad_table`` ``[total_entries, F]`` (if given) and
+    return its point gradient ``[n_points, 3]`` (if ``need_x``); ``x01`` ``[n_points, 3]``, ``grad_out``
+    ``[n_points, n_levels * F]``."""
     indices, frac = _corners(x01, levels)
     n_levels, n_features = indices.shape[0], table.shape[1]
     grad_levels = grad_out.reshape(-1, n_levels, n_features).permute(2, 1, 0).contiguous()
@@ -282,15 +249,10 @@ class HashGridEncoding(nn.Module):
         bound: points in ``[-bound, bound]^3`` are encoded; points outside are clamped to its edge.
         init_scale: tables start uniform in ``[-init_scale, init_scale]``.
 
-    Attributes:
-        output_dim: ``L * F``.
-        resolutions: cells per axis of each level.
-        offsets: first table row of each level.
-        hashmap_size: ``T``.
-        n_dense_levels: how many coarse levels are indexed directly (collision-free).
-        n_active_levels: levels that contribute; the finer ones output zeros (coarse-to-fine
-            schedules). Set with :meth:`set_active_levels`.
-        table: ``[total_entries, F]`` parameter holding every level.
+    Attributes: ``output_dim`` (``L * F``), ``resolutions``, ``offsets`` (first table row of each
+    level), ``hashmap_size`` (``T``), ``n_dense_levels`` (coarse levels indexed directly),
+    ``n_active_levels`` (levels that contribute, see :meth:`set_active_levels`) and ``table``
+    (``[total_entries, F]``, every level).
     """
 
     def __init__(
@@ -342,35 +304,9 @@ class HashGridEncoding(nn.Module):
             raise ValueError(f"n_active must be in [0, {self.n_levels}], got {n_active}")
         self.n_active_levels = n_active
 
-    def level_mask(self, n_active: int) -> torch.Tensor:
-        """``[output_dim]`` bool, True for the output channels of the ``n_active`` coarsest levels."""
-        mask = torch.zeros(self.n_levels, self.n_features_per_level, dtype=torch.bool)
-        mask[:n_active] = True
-        return mask.flatten()
-
-    def corner_indices(self, x: torch.Tensor) -> torch.Tensor:
-        """Index of each point's 8 corners within each level's table (before the level offset).
-
-        Args:
-            x: ``[n_points, 3]``.
-
-        Returns:
-            ``[n_points, n_levels, 8]`` int64, level ``l``'s in ``[0, its table size)``.
-        """
-        cell, _ = cell_corners(normalise_points(x, self.bound), self._resolutions)
-        return corner_indices(cell, self.levels()).permute(2, 0, 1)
-
     def forward(self, x: torch.Tensor, n_active_levels: Optional[int] = None) -> torch.Tensor:
-        """Encode points.
-
-        Args:
-            x: ``[..., 3]`` points.
-            n_active_levels: overrides :attr:`n_active_levels` for this call.
-
-        Returns:
-            ``[..., output_dim]`` in the table's dtype (float32 by default); the channels of
-            inactive levels are zero.
-        """
+        """Encode points ``x [..., 3]`` -> ``[..., output_dim]`` in the table's dtype, inactive levels'
+        channels zero; ``n_active_levels`` overrides :attr:`n_active_levels` for this call."""
         n_active = self.n_active_levels if n_active_levels is None else n_active_levels
         points = normalise_points(x.reshape(-1, 3).to(self.table.dtype), self.bound)
         if n_active == 0:
@@ -380,11 +316,9 @@ class HashGridEncoding(nn.Module):
         return encoded.view(*x.shape[:-1], self.output_dim)
 
     def forward_with_pullback(self, x: torch.Tensor):
-        """Encode points ``[n_points, 3]`` (``[n_points, output_dim]``) and return with them a function
-        that maps a derivative with respect to the encoding, ``[n_points, output_dim]``, to the
-        derivative with respect to the points in world units, ``[n_points, 3]`` (zero along an axis
-        where the point lies outside ``[-bound, bound]``); see :func:`encode_with_pullback`. Under
-        grad mode the result is differentiable in the table."""
+        """The encoding ``[n_points, output_dim]`` of points ``[n_points, 3]`` and a function mapping a
+        derivative w.r.t. it to one w.r.t. the points in world units, ``[n_points, 3]`` (zero outside
+        ``[-bound, bound]``); see :func:`encode_with_pullback`."""
         n_active = self.n_active_levels
         flat = x.reshape(-1, 3).to(self.table.dtype)
         points = normalise_points(flat, self.bound)
@@ -401,14 +335,10 @@ class HashGridEncoding(nn.Module):
 
 
 def encode_with_pullback(x01: torch.Tensor, table: torch.Tensor, levels: GridLevels):
-    """The encoding ``[n_points, n_levels * F]`` and a function that pulls a derivative with respect
-    to it (``[n_points, n_levels * F]``) back to the point (``[n_points, 3]``, d/d x01).
-
-    A vector-Jacobian product that never builds the Jacobian: the derivative is first summed over
-    each corner's features, then pushed through the trilinear weights' derivatives
-    (:func:`_frac_gradient`: inside a cell, a weight's derivative along an axis is the product of the
-    other two axes' weights, signed). Plain autograd, so the pulled-back derivative is differentiable
-    in ``table`` (an eikonal loss trains the table in one ordinary backward)."""
+    """The encoding ``[n_points, n_levels * F]`` and a function that pulls a derivative w.r.t. it back to
+    the points (``[n_points, 3]``, d/d x01): a vector-Jacobian product through :func:`_frac_gradient`
+    that never builds the Jacobian. Plain autograd, so the result is differentiable in ``table``
+    (an eikonal loss trains the table in one ordinary backward)."""
     indices, frac = _corners(x01, levels)
     corners = _gather(table, indices)  # [F, L, 8, N]
     encoded = (corners * corner_weights(frac)).sum(2)  # [F, L, N]

@@ -32,10 +32,8 @@ def hash_grid_reference(
     hashmap_size: int,
     bound: float = 1.0,
 ) -> torch.Tensor:
-    """Encode points ``[..., 3]`` into ``[..., n_levels * F]`` with ``table`` ``[total_entries, F]``.
-
-    Level ``l`` has ``resolutions[l]`` cells per axis and its entries start at ``table[offsets[l]]``.
-    """
+    """Encode points ``[..., 3]`` into ``[..., n_levels * F]`` with ``table [total_entries, F]``; level ``l``
+    has ``resolutions[l]`` cells per axis and starts at ``table[offsets[l]]``."""
     points = ((x.reshape(-1, 3).to(table.dtype) + bound) / (2 * bound)).clamp(0.0, 1.0)
     levels = []
     for offset, resolution in zip(offsets, resolutions):

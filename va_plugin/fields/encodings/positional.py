@@ -11,10 +11,8 @@ from va_plugin.errors import ConfigError
 
 
 class PositionalEncoding(nn.Module):
-    """``x -> [x, sin(2^k x), cos(2^k x) for k < n_frequencies]`` per coordinate.
-
-    The frequencies are 2^k without a factor of pi (NeuS's choice), suited to coordinates in about [-1, 1].
-    """
+    """``x -> [x, sin(2^k x), cos(2^k x) for k < n_frequencies]`` per coordinate (no factor of pi, as
+    in NeuS: suited to coordinates in about [-1, 1])."""
 
     def __init__(self, in_dim: int, n_frequencies: int, include_input: bool = True) -> None:
         super().__init__()
@@ -35,11 +33,8 @@ class PositionalEncoding(nn.Module):
         return torch.cat(parts + [torch.sin(scaled), torch.cos(scaled)], dim=-1)
 
     def pull_back(self, x: torch.Tensor, grad_encoding: torch.Tensor) -> torch.Tensor:
-        """Chain rule through the encoding: ``grad_encoding [..., output_dim]`` (a derivative with
-        respect to gamma(x)) becomes the derivative with respect to ``x``, ``[..., in_dim]``.
-
-        d sin(f x)/dx = f cos(f x) and d cos(f x)/dx = -f sin(f x), so this is a few elementwise
-        products, differentiable in both arguments (usable inside a graph that is backpropagated)."""
+        """Chain rule through the encoding: ``grad_encoding [..., output_dim]`` (d/d gamma(x)) becomes
+        d/dx ``[..., in_dim]``; elementwise products, differentiable in both arguments."""
         if self.n_frequencies == 0:
             return grad_encoding
         lead, d, n = x.shape[:-1], self.in_dim, self.n_frequencies
