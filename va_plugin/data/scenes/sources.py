@@ -48,6 +48,11 @@ def perturbed_camera(cameras: Cameras, index: int, orbit_deg) -> Cameras:
                    cameras.height, cameras.camera_type, cameras.pixel_offset)
 
 
+BAKED_TEXTURE_SIZE = 1024
+BAKED_MAX_FACES = 100_000
+"""Faces of the ground-truth mesh kept for the baked off-rig views (the geometry scores use the whole mesh)."""
+
+
 class SceneSource:
     """A benchmark object: ground-truth mesh, clean views, and inconsistent input views."""
 
@@ -93,9 +98,10 @@ class RenderedSource(SceneSource):
 
 
 class ImageSource(SceneSource):
-    """Fixed renders on the rig ``[16, H, W, 4]`` with an aligned mesh; perturbed by resampling."""
+    """Fixed renders on the rig ``[16, H, W, 4]`` with an aligned mesh; perturbed by resampling. Views off
+    the rig show the mesh with a texture baked from the 16 renders (see :meth:`baked_renderer`)."""
 
-    renderable = False
+    renderable = True
 
     def __init__(self, spec: str, description: str, images: np.ndarray, ground_truth: trimesh.Trimesh,
                  info: Optional[Dict[str, Any]] = None) -> None:
@@ -103,9 +109,28 @@ class ImageSource(SceneSource):
         self.ground_truth = ground_truth
         self.depth_renderer = MeshRenderer(ground_truth, lambda hits: np.zeros((len(hits.points), 3), np.float32))
         self._info = info or {}
+        self._baked: Optional[MeshRenderer] = None
 
     def clean(self, cameras: Cameras, view: int) -> np.ndarray:
-        return self.images[view]
+        if view < len(self.images):
+            return self.images[view]
+        return self.baked_renderer(cameras.subset(list(range(len(self.images))))).render(cameras, view)
+
+    def baked_renderer(self, rig: Cameras) -> MeshRenderer:
+        """The mesh with a texture baked from the rig renders (``rig``: their cameras; weighted mean of
+        the views that see a texel): an estimate of the object's look from off the rig, faithful where the
+        rig sees the surface (the renders carry the only appearance there is)."""
+        if self._baked is None:
+            from va_plugin.eval.mesh_render import textured_renderer
+            from va_plugin.export.texture import bake_texture
+            from va_plugin.export.views import Views
+
+            alpha = self.images[..., 3:]
+            views = Views(rig, (self.images[..., :3] * alpha + (1.0 - alpha)).astype(np.float32))
+            textured, _ = bake_texture(self.ground_truth, views, size=BAKED_TEXTURE_SIZE, fusion="mean",
+                                       max_faces=BAKED_MAX_FACES)
+            self._baked = textured_renderer(textured)
+        return self._baked
 
     def pose_map(self, cameras: Cameras, view: int, orbit_deg) -> np.ndarray:
         """For each pixel of the perturbed view, where it lies in the nominal view ``[H, W, 2]``, through

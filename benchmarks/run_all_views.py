@@ -1,0 +1,167 @@
+"""Every view against the paper's four: the `neus` default on GSO objects trained on 4 and on 16 rig views,
+scored on the same held-out views off the rig (elevations 0 and 45 degrees, azimuths between the rig's),
+which no view count trains on.
+
+The GSO renders exist only on the rig, so the off-rig views show the ground-truth mesh with a texture baked
+from the 16 clean renders (``ImageSource.baked_renderer``); the script also reports how closely that
+texture reproduces the rig's own renders. Each row: CD, IoU (the ground-truth mesh), PSNR, SSIM, LPIPS (the
+8 off-rig views), wall seconds from the start of training to the evaluated mesh. Rows go to OUT/rows.jsonl
+(a rerun skips finished ones) and the table to OUT/all_views.md.
+
+    python benchmarks/run_all_views.py --data-root ../shared/data/gso [--objects alarm,bell] [--views 4,16]
+        [--level 2] [--steps N] [--jobs 2] [--out outputs/bench/all-views]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import sys
+import time
+from concurrent.futures import ProcessPoolExecutor
+from multiprocessing import get_context
+from pathlib import Path
+from typing import Any, Dict, List
+
+import numpy as np
+
+METRICS = ("cd", "iou", "psnr", "ssim", "lpips", "wall_seconds", "train_seconds")
+
+
+def build(root: Path, data_root: Path, name: str, views: int, level: int) -> Path:
+    """The object's scene with ``views`` inputs whose held-out views are the off-rig ones only."""
+    from va_plugin.data.rigs import RIG_VIEWS, input_view_ids
+    from va_plugin.data.scenes.builder import build_scene
+    from va_plugin.data.scenes.rig import view_angles
+
+    out = root / f"{name}-l{level}-v{views}"
+    if (out / "scene.json").is_file():
+        return out
+    train = input_view_ids(views)
+    held_out = [i for i in range(len(view_angles(extra=True))) if i not in train]
+    off_rig = [k for k, i in enumerate(held_out) if i >= RIG_VIEWS]
+    return build_scene(out, f"gso:{name}", n_views=views, level=level, data_root=data_root, test_views=off_rig)
+
+
+def run_one(job: Dict[str, Any]) -> Dict[str, Any]:
+    """Train the default on one scene (one torch thread), then evaluate its final state."""
+    import torch
+
+    from va_plugin.cli.run import load_run
+    from va_plugin.engine.trainer import train_run
+    from va_plugin.eval.evaluate import evaluate_run
+    from va_plugin.registry import get_method
+
+    torch.set_num_threads(1)
+    config = get_method("neus").make_config()
+    config.pipeline.datamanager.dataparser.data = Path(job["scene"])
+    config.output_dir = Path(job["run_dir"])
+    config.progress = False
+    if job["steps"]:
+        config.max_steps = job["steps"]
+    started = time.perf_counter()
+    train_run(config, resume=True)
+    pipeline, state = load_run(Path(job["run_dir"]), device="cpu")
+    result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
+    wall = time.perf_counter() - started
+    return {**{k: job[k] for k in ("key", "object", "views", "level")}, "cd": result["cd"], "iou": result["iou"],
+            "psnr": result["psnr"], "ssim": result["ssim"], "lpips": result.get("lpips"),
+            "test_views": result["image_params"]["views"], "steps": int(state["step"]),
+            "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}
+
+
+def texture_fidelity(scene: Path) -> float:
+    """PSNR of the baked ground-truth texture rendered at the rig's views against the renders (on white)."""
+    from va_plugin.data.scenes.rig import benchmark_cameras
+    from va_plugin.data.scenes.sources import load_source
+    from va_plugin.eval.image import psnr
+
+    info = json.loads((scene / "scene.json").read_text())
+    source = load_source(info["source"], info["resolution"], Path(info["source_info"]["data_root"]))
+    rig = benchmark_cameras(info["resolution"], extra=False)
+    renderer = source.baked_renderer(rig)
+    scores = []
+    for k in range(len(rig)):
+        baked, real = renderer.render(rig, k), source.images[k]
+        scores.append(psnr(baked[..., :3] * baked[..., 3:] + 1 - baked[..., 3:], real[..., :3] * real[..., 3:] + 1 - real[..., 3:]))
+    return float(np.mean(scores))
+
+
+def table(rows: List[Dict[str, Any]], counts: List[int]) -> str:
+    objects = sorted({r["object"] for r in rows})
+    by = {(r["object"], r["views"]): r for r in rows}
+    lines = ["| object | " + " | ".join(f"{v} views: CD / IoU / PSNR / LPIPS / wall s" for v in counts) + " |",
+             "|---|" + "---|" * len(counts)]
+    for o in objects:
+        cells = [" / ".join(f"{by[(o, v)][m]:.4g}" for m in ("cd", "iou", "psnr", "lpips", "wall_seconds"))
+                 if (o, v) in by else "-" for v in counts]
+        lines.append(f"| {o} | " + " | ".join(cells) + " |")
+    paired = [o for o in objects if all((o, v) in by for v in counts)]
+    if paired and len(counts) > 1:
+        base = counts[0]
+        lines.append(f"\nPaired over {len(paired)} objects, against {base} views:")
+        for v in counts[1:]:
+            ratio = lambda m: np.mean([by[(o, v)][m] for o in paired]) / np.mean([by[(o, base)][m] for o in paired])  # noqa: E731
+            diff = lambda m: np.mean([by[(o, v)][m] - by[(o, base)][m] for o in paired])  # noqa: E731
+            better = sum(by[(o, v)]["cd"] < by[(o, base)]["cd"] for o in paired)
+            lines.append(f"- {v} views: CD x{ratio('cd'):.3f} (lower on {better}/{len(paired)}), IoU {diff('iou'):+.3f}, "
+                         f"PSNR {diff('psnr'):+.2f} dB, LPIPS {diff('lpips'):+.4f}, wall x{ratio('wall_seconds'):.3f}")
+        for v in counts:
+            means = {m: np.mean([by[(o, v)][m] for o in paired]) for m in METRICS}
+            lines.append(f"- mean at {v} views: " + ", ".join(f"{m} {means[m]:.4g}" for m in METRICS))
+    return "\n".join(lines) + "\n"
+
+
+def main(argv=None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--data-root", type=Path, default=Path("../shared/data/gso"))
+    parser.add_argument("--objects", default=None, help="comma-separated GSO names (default: all)")
+    parser.add_argument("--views", default="4,16", help="comma-separated view counts (4, 8, 12, 16)")
+    parser.add_argument("--level", type=int, default=2)
+    parser.add_argument("--steps", type=int, default=0, help="training steps (default: the method's)")
+    parser.add_argument("--jobs", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=Path("outputs/bench/all-views"))
+    args = parser.parse_args(argv)
+    from va_plugin.data.scenes import gso
+    from va_plugin.errors import VAError
+
+    try:
+        names = args.objects.split(",") if args.objects else gso.list_objects(args.data_root)
+        counts = [int(v) for v in args.views.split(",")]
+        args.out.mkdir(parents=True, exist_ok=True)
+        rows_file = args.out / "rows.jsonl"
+        done = {}
+        if rows_file.is_file():
+            for line in rows_file.read_text().splitlines():
+                if line.strip():
+                    row = json.loads(line)
+                    done[row["key"]] = row
+        jobs = []
+        for name in names:
+            for views in counts:
+                key = f"{name}-l{args.level}-v{views}-s{args.steps or 'default'}"
+                if key in done:
+                    continue
+                scene = build(args.out / "scenes", args.data_root, name, views, args.level)
+                jobs.append({"key": key, "object": name, "views": views, "level": args.level, "steps": args.steps,
+                             "scene": str(scene), "run_dir": str(args.out / "runs" / key)})
+    except VAError as exc:
+        sys.exit(f"error: {exc}")
+    print(f"{len(done)} rows done, {len(jobs)} to run with {args.jobs} job(s)", file=sys.stderr)
+    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool, open(rows_file, "a") as out:
+        for row in pool.map(run_one, jobs):
+            out.write(json.dumps(row) + "\n")
+            out.flush()
+            done[row["key"]] = row
+            print(json.dumps(row), file=sys.stderr)
+    fidelity = {n: round(texture_fidelity(args.out / "scenes" / f"{n}-l{args.level}-v{counts[0]}"), 2) for n in names}
+    text = table(list(done.values()), counts) + f"\nBaked ground-truth texture at the rig's views, PSNR: {fidelity}\n"
+    (args.out / "all_views.md").write_text(text)
+    print(text)
+    return 0
+
+
+if __name__ == "__main__":
+    os.environ.setdefault("OMP_NUM_THREADS", "1")
+    sys.exit(main())
