@@ -41,7 +41,8 @@ def build(root: Path, data_root: Path, name: str, views: int, level: int) -> Pat
     train = input_view_ids(views)
     held_out = [i for i in range(len(view_angles(extra=True))) if i not in train]
     off_rig = [k for k, i in enumerate(held_out) if i >= RIG_VIEWS]
-    return build_scene(out, f"gso:{name}", n_views=views, level=level, data_root=data_root, test_views=off_rig)
+    return build_scene(out, f"gso:{name}", n_views=views, level=level, data_root=data_root, test_views=off_rig,
+                       gso_off_rig=True)
 
 
 def run_one(job: Dict[str, Any]) -> Dict[str, Any]:
@@ -78,7 +79,7 @@ def texture_fidelity(scene: Path) -> float:
     from va_plugin.eval.image import psnr
 
     info = json.loads((scene / "scene.json").read_text())
-    source = load_source(info["source"], info["resolution"], Path(info["source_info"]["data_root"]))
+    source = load_source(info["source"], info["resolution"], Path(info["source_info"]["data_root"]), gso_off_rig=True)
     rig = benchmark_cameras(info["resolution"], extra=False)
     renderer = source.baked_renderer(rig)
     scores = []

@@ -101,10 +101,10 @@ class ImageSource(SceneSource):
     """Fixed renders on the rig ``[16, H, W, 4]`` with an aligned mesh; perturbed by resampling. Views off
     the rig show the mesh with a texture baked from the 16 renders (see :meth:`baked_renderer`)."""
 
-    renderable = True
-
     def __init__(self, spec: str, description: str, images: np.ndarray, ground_truth: trimesh.Trimesh,
-                 info: Optional[Dict[str, Any]] = None) -> None:
+                 info: Optional[Dict[str, Any]] = None, off_rig: bool = False) -> None:
+        """``off_rig``: the source also renders the views off the rig (baked), so scenes hold them out too."""
+        self.renderable = off_rig
         self.spec, self.description, self.images = spec, description, images
         self.ground_truth = ground_truth
         self.depth_renderer = MeshRenderer(ground_truth, lambda hits: np.zeros((len(hits.points), 3), np.float32))
@@ -180,8 +180,10 @@ def split_spec(spec: str):
 
 
 def load_source(spec: str, resolution: int = 256, data_root: Optional[Path] = None, mesh_resolution: int = 160,
-                up_axis: str = "y", yaw_deg: float = 0.0, texture: Optional[Path] = None) -> SceneSource:
-    """The source named by ``spec`` (see the module docstring); ``data_root`` is the GSO folder."""
+                up_axis: str = "y", yaw_deg: float = 0.0, texture: Optional[Path] = None,
+                gso_off_rig: bool = False) -> SceneSource:
+    """The source named by ``spec`` (see the module docstring); ``data_root`` is the GSO folder.
+    ``gso_off_rig``: a GSO object renders views off the rig too (baked; the paper's protocol has none)."""
     kind, name = split_spec(spec)
     if kind == "procedural":
         obj = shapes.get_object(name)
@@ -200,4 +202,4 @@ def load_source(spec: str, resolution: int = 256, data_root: Optional[Path] = No
     mesh = gso.load_mesh(Path(data_root), name)
     info = {"data_root": str(data_root), "alignment_deg": gso.alignment_angle(Path(data_root), name)}
     return ImageSource(f"gso:{name}", f"Google Scanned Object {name} (renders on the SyncDreamer rig)",
-                       images, mesh, info)
+                       images, mesh, info, off_rig=gso_off_rig)
