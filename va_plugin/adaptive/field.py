@@ -123,18 +123,15 @@ class ViewAdaptiveField(Field):
             self.attention = ViewAttention(d, config.attention_dim, config.attention_heads) \
                 if config.fusion else None
         # persistent so a loaded checkpoint renders in the phase it finished in
-        self.also_canonical = False
-        """Set by the diagnostics: colour() also returns ``rgb_canonical`` (see there)."""
+        self.also_canonical = False  # set by the diagnostics: colour() also returns ``rgb_canonical`` (see there)
         self.register_buffer("phase", torch.tensor(PRETRAIN))
         self.register_buffer("skipped", torch.tensor(False))
         self._phase = PRETRAIN  # host copy of the buffer: no device sync per colour query
         self.register_load_state_dict_post_hook(lambda module, _: module._refresh_phase())
         self.register_buffer("attention_sum", torch.zeros(num_train_views, num_train_views))
         self.register_buffer("attention_mass", torch.zeros(()))
-        self.adaptive_share = 0.0
-        """Share of the last training batch's samples that took the branch/attention path."""
-        self.fused_share = 0.0
-        """Share of the last training batch's samples that took the fused path (phase 3)."""
+        self.adaptive_share = 0.0  # share of the last training batch's samples that took the branch/attention path
+        self.fused_share = 0.0  # share of the last training batch's samples that took the fused path (phase 3)
 
     # -- phases (set by the trainer's callback) ---------------------------------------------------
     def update_step(self, step: int, max_steps: int) -> None:
@@ -353,33 +350,22 @@ class ViewAdaptiveField(Field):
 class ColorMode:
     """The switches of one colour query, read once from the field's phase, config and flags."""
 
-    branches: bool
-    """The per-view branches are on (phase 2 or 3)."""
-    fusion: bool
-    """The attention fusion is on (phase 3)."""
-    training: bool
-    """The regularizers and the attention record are wanted (train mode)."""
-    also_canonical: bool
-    """``rgb_canonical`` is wanted beside ``rgb`` (diagnostics)."""
-    min_sample_weight: float
-    """Samples at most this heavy keep the shared colour."""
-    fused_samples_per_ray: int
-    """Fused samples per ray while fusion is on (0: every visible sample; always 0 without fusion)."""
-    shared_colour: bool = False
-    """``rgb_shared`` (the shared path's colour of every sample) is wanted for ``shared_colour_weight``."""
+    branches: bool  # the per-view branches are on (phase 2 or 3)
+    fusion: bool  # the attention fusion is on (phase 3)
+    training: bool  # the regularizers and the attention record are wanted
+    also_canonical: bool  # ``rgb_canonical`` is wanted beside ``rgb`` (diagnostics)
+    min_sample_weight: float  # samples at most this heavy keep the shared colour
+    fused_samples_per_ray: int  # while fusion is on (0: every visible sample; always 0 without fusion)
+    shared_colour: bool = False  # ``rgb_shared`` (the shared path's colour) is wanted
 
 
 @dataclass(frozen=True)
 class SampleRoutes:
     """Which flat samples take which colour path (the others keep the shared colour)."""
 
-    adaptive: torch.Tensor
-    """Indices ``[A]`` of the samples that take the adaptive path (fused, in the fusion phase)."""
-    own_only: Optional[torch.Tensor]
-    """Indices ``[B]`` of the visible samples that take their own view's branch alone (fusion phase with
-    ``fused_samples_per_ray > 0``), or None."""
-    evaluated: torch.Tensor
-    """``bool [S]``: the samples of ``adaptive`` as a mask (where the regularizers are evaluated)."""
+    adaptive: torch.Tensor  # [A] indices of the samples on the adaptive path (fused, in the fusion phase)
+    own_only: Optional[torch.Tensor]  # [B] visible samples on their own view's branch alone, or None
+    evaluated: torch.Tensor  # bool [S]: ``adaptive`` as a mask (where the regularizers are evaluated)
 
     def shares(self, mode: ColorMode) -> tuple:
         """(adaptive share, fused share) of the ``S`` samples: what :meth:`ViewAdaptiveField.diagnostics` logs."""

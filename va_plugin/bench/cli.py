@@ -32,19 +32,16 @@ DEFAULT_GSO_ROOT = REPO.parent / "shared" / "data" / "gso"
 
 @dataclass
 class Experiment:
-    name: str
-    """Short name: output files are ``OUT/<name>.md|.csv|.json``; default folder outputs/bench/<name>-<preset>."""
+    name: str  # output files OUT/<name>.md|.csv|.json; default folder outputs/bench/<name>-<preset>
     title: str
     description: str
+    # (preset, parsed flags, scene sources) -> the rows, in the order they run
     plan: Callable[[BenchPreset, argparse.Namespace, List[str]], List[RowSpec]]
-    """(preset, parsed flags, scene sources) -> the rows, in the order they run."""
+    # (finished rows in plan order, out folder, meta) -> files written (the Markdown report first)
     report: Callable[[List[Dict[str, Any]], Path, Dict[str, Any]], List[Path]]
-    """(finished rows in plan order, out folder, meta) -> files written (the Markdown report first)."""
     add_arguments: Optional[Callable[[argparse.ArgumentParser], None]] = None
-    axis_scenes: bool = False
-    """Default scenes: the preset's ``axis_scenes`` (experiments with 4 runs per method and scene)."""
-    fixed: Sequence[str] = ()
-    """Scene settings the experiment varies itself, so their flags are not offered ("level", "views")."""
+    axis_scenes: bool = False  # default scenes: the preset's ``axis_scenes``
+    fixed: Sequence[str] = ()  # scene settings the experiment varies itself ("level", "views"): no flags
     default_backbones: str = "neus,ngp"
 
 
@@ -171,8 +168,7 @@ class Progress:
         self.budgets = list(budgets)
         self.jobs = jobs
         self.remaining = set(range(len(budgets)))
-        self.running: Dict[int, float] = {}
-        """Rows under way -> when they started."""
+        self.running: Dict[int, float] = {}  # rows under way -> when they started
         self.steps_done = 0
         self.seconds_spent = 0.0
 
@@ -262,10 +258,8 @@ class ExperimentRun:
         self.meta["machine"]["load_average_start"] = self.meta["machine"].pop("load_average", None)
         if self.jobs > 1:
             self.meta["machine"]["torch_threads"] = self.threads
-        self.results: Dict[str, Dict[str, Any]] = {}
-        """Finished rows by key (run now or taken from the store)."""
-        self.skipped = 0
-        """Rows taken from the store."""
+        self.results: Dict[str, Dict[str, Any]] = {}  # finished rows by key (run now or taken from the store)
+        self.skipped = 0  # rows taken from the store
 
     def write_reports(self) -> List[Path]:
         done = [self.results[r.key] for r in self.rows if r.key in self.results]

@@ -21,45 +21,30 @@ BACKBONE_TITLES = {"neus": "NeuS", "ngp": "InstantNGP"}
 class EvalSettings:
     """Arguments of :func:`va_plugin.eval.evaluate.evaluate_run` (the evaluation behind ``va-eval``)."""
 
-    image_scale: float = 1.0
-    """Held-out views are rendered (and their ground truth resized) at this fraction of the scene's size."""
-    max_views: Optional[int] = None
-    """Held-out views scored (the first ones of the scene's test split; None: all)."""
-    mesh_resolution: int = 128
-    """Marching-cubes grid of the run's mesh."""
-    n_samples: int = 100_000
-    """Surface samples per mesh for Chamfer distance and F-score."""
+    image_scale: float = 1.0  # held-out views (and their ground truth) at this fraction of the scene's size
+    max_views: Optional[int] = None  # held-out views scored (the first ones; None: all)
+    mesh_resolution: int = 128  # marching-cubes grid of the run's mesh
+    n_samples: int = 100_000  # surface samples per mesh for Chamfer distance and F-score
 
 
 @dataclass
 class BenchPreset:
     name: str
     description: str
-    scenes: Tuple[str, ...]
-    """Scenes of run_table1 and run_ablation (names as ``--scenes`` takes them)."""
-    axis_scenes: Tuple[str, ...]
-    """Scenes of run_views and run_sweep, which train every method 4 times per scene."""
+    scenes: Tuple[str, ...]  # of run_table1 and run_ablation (names as ``--scenes`` takes them)
+    axis_scenes: Tuple[str, ...]  # of run_views and run_sweep (4 runs per method and scene)
     evaluation: EvalSettings
-    resolution: int = 256
-    """Image side of the scenes (the paper's 256)."""
-    scene_mesh_resolution: int = 160
-    """Marching-cubes grid of the procedural objects' ground truth."""
-    level: int = 2
-    """Inconsistency level (2: calibrated to real SyncDreamer outputs)."""
-    views: int = 4
-    """Input views (the paper's 4)."""
-    method_preset: Optional[str] = None
-    """Registry preset applied to every method ("fast", "accurate"; None: each method's default)."""
-    steps: Dict[str, int] = field(default_factory=dict)
-    """Step budget per backbone; a backbone missing here keeps its method's (or method preset's)."""
+    resolution: int = 256  # image side of the scenes (the paper's 256)
+    scene_mesh_resolution: int = 160  # marching-cubes grid of the procedural objects' ground truth
+    level: int = 2  # inconsistency level (2: calibrated to real SyncDreamer outputs)
+    views: int = 4  # input views (the paper's 4)
+    method_preset: Optional[str] = None  # registry preset of every method (None: each method's default)
+    steps: Dict[str, int] = field(default_factory=dict)  # step budget per backbone (missing: the method's)
+    # config overrides per backbone ("*": every backbone), for original and adaptive alike
     overrides: Dict[str, Tuple[str, ...]] = field(default_factory=dict)
-    """Config overrides per backbone ("*": every backbone), applied to original and adaptive alike."""
-    curve_points: int = 4
-    """Checkpoints evaluated along each run for the time-vs-error plot (the last is the row itself)."""
-    view_counts: Tuple[int, ...] = (4, 8, 12, 16)
-    """Input view counts of run_views (the paper's Fig. 5)."""
-    levels: Tuple[int, ...] = (0, 1, 2, 3)
-    """Inconsistency levels of run_sweep."""
+    curve_points: int = 4  # checkpoints evaluated along each run (the last is the row itself)
+    view_counts: Tuple[int, ...] = (4, 8, 12, 16)  # input view counts of run_views (the paper's Fig. 5)
+    levels: Tuple[int, ...] = (0, 1, 2, 3)  # inconsistency levels of run_sweep
 
     def overrides_for(self, backbone: str) -> Tuple[str, ...]:
         return tuple(self.overrides.get("*", ())) + tuple(self.overrides.get(backbone, ()))

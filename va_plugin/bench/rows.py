@@ -44,13 +44,10 @@ class RowSpec:
     scene: SceneSpec
     backbone: str
     adaptive: bool
-    variant: str = ""
-    """Label of the row in its table (default: "Original NeuS", "View-adaptive NeuS", ...)."""
+    variant: str = ""  # label in its table (default: "Original NeuS", "View-adaptive NeuS", ...)
     overrides: Tuple[str, ...] = ()
-    method_preset: Optional[str] = None
-    """Registry preset of this row's method (default: the benchmark preset's ``method_preset``)."""
-    steps: Optional[int] = None
-    """Step budget of this row (default: the benchmark preset's, else the method's)."""
+    method_preset: Optional[str] = None  # registry preset (default: the benchmark preset's)
+    steps: Optional[int] = None  # step budget (default: the benchmark preset's, else the method's)
 
     @property
     def method(self) -> str:

@@ -31,8 +31,7 @@ class SceneSpec:
     resolution: int = 256
     seed: int = 42
     mesh_resolution: int = 160
-    kinds: Tuple[str, ...] = KINDS
-    """The inconsistency kinds injected (canonical order); all of them unless a benchmark asks for fewer."""
+    kinds: Tuple[str, ...] = KINDS  # the inconsistency kinds injected (canonical order)
 
     @property
     def kinds_suffix(self) -> str:

@@ -20,18 +20,12 @@ LearningRateFactors = Optional[Dict[str, float]]
 class TrainingCallbackAttributes:
     """What a callback may read and use."""
 
-    pipeline: Any
-    """The :class:`~va_plugin.pipelines.base.Pipeline`: data manager and model."""
-    max_steps: int
-    """The step budget."""
-    run_dir: Path
-    """The run folder (for files a callback writes)."""
-    progress: bool
-    """Whether the run shows progress (and so may print)."""
-    announce: Callable[..., None]
-    """``announce(step, message, **fields)``: a console line (with progress) and a metrics.jsonl record."""
-    schedule_steps: Optional[int] = None
-    """The step at which the run's schedules end (``TrainerConfig.schedule_steps``); None: ``max_steps``."""
+    pipeline: Any  # the :class:`~va_plugin.pipelines.base.Pipeline`: data manager and model
+    max_steps: int  # the step budget
+    run_dir: Path  # the run folder (for files a callback writes)
+    progress: bool  # whether the run shows progress (and so may print)
+    announce: Callable[..., None]  # ``announce(step, message, **fields)``: a console line and a log record
+    schedule_steps: Optional[int] = None  # where the run's schedules end; None: ``max_steps``
 
     @property
     def horizon(self) -> int:

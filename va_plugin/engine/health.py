@@ -112,14 +112,12 @@ class TrainingGuard:
         self.restores = 0
         self.skips_in_a_row = 0
         self.inv_s_start = inv_s_start
-        self.inv_s_peak = inv_s_start
-        """The highest inv_s of an accepted update (the start value before the first)."""
+        self.inv_s_peak = inv_s_start  # the highest inv_s of an accepted update (the start value before the first)
         self.inv_s_now = inv_s_start
         self.inv_s_below_start = False
         self._warned: set = set()
         self._snapshot: Optional[Dict[str, Any]] = None
-        self.reason = ""
-        """What was wrong with the last bad step."""
+        self.reason = ""  # what was wrong with the last bad step
 
     # -- the verdict on a step ------------------------------------------------------------------------
     @timed("health")

@@ -22,11 +22,8 @@ class SceneInfo:
     num_train_views: int
     scene_radius: float
     background: Sequence[float] = (1.0, 1.0, 1.0)
-    max_steps: int = 1000
-    """The step at which the run's schedules end (``schedule_horizon`` of the trainer config: the budget, or
-    ``schedule_steps`` when that is shorter); the model's schedules are fractions of it."""
-    train_cameras: Optional[Cameras] = None
-    """The training views' cameras (the NGP occupancy grid keeps only cells they all see), on the device."""
+    max_steps: int = 1000  # where the run's schedules end (the trainer's ``schedule_horizon``)
+    train_cameras: Optional[Cameras] = None  # on the device (the NGP occupancy grid keeps cells they all see)
 
 
 @dataclass
@@ -52,8 +49,7 @@ class Model(nn.Module):
         self.register_buffer("background", torch.tensor(list(scene.background), dtype=torch.float32),
                              persistent=False)
         self.step = 0
-        self.extra_losses: List[ExtraLoss] = []
-        """Hooks adding loss terms (e.g. a score-distillation loss): ``(outputs, batch, step) -> dict``."""
+        self.extra_losses: List[ExtraLoss] = []  # hooks adding loss terms: ``(outputs, batch, step) -> dict``
 
     # -- training -------------------------------------------------------------------------------
     def update_step(self, step: int) -> None:

@@ -100,13 +100,12 @@ class NeuSModel(Model):
             raise ConfigError(f"sdf_gradient='analytic' needs a field with geometry_and_gradient; "
                               f"{type(self.field).__name__} has none (use 'autograd')")
         self.sdf_gradient = config.sdf_gradient if config.sdf_gradient != "auto" else \
-            ("analytic" if _supports_analytic_gradient(self.field) else "autograd")
-        """The gradient path in use (``config.sdf_gradient`` with "auto" resolved)."""
+            ("analytic" if _supports_analytic_gradient(self.field) else "autograd")  # "auto" resolved
         self.variance = SingleVariance(config.variance_init)
+        # per batch ray of the last training batch: samples evaluated with gradients (skipped rays count 0),
+        # and SDF evaluations of the gradient-free coarse and up-sampling passes
         self.samples_per_ray = 0.0
-        """Samples per batch ray evaluated with gradients in the last training batch (skipped rays count 0)."""
         self.probed_per_ray = 0.0
-        """SDF evaluations per batch ray of the gradient-free coarse and up-sampling passes, last training batch."""
 
     # -- schedules ------------------------------------------------------------------------------
     def inv_s_floor(self, step: int) -> float:

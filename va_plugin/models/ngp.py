@@ -73,8 +73,7 @@ class NGPModel(Model):
             raise ConfigError(f"density_threshold must be positive, got {config.density_threshold}")
         if not (math.isfinite(config.mesh_smoothing) and config.mesh_smoothing >= 0):
             raise ConfigError(f"mesh_smoothing must be a finite width >= 0, got {config.mesh_smoothing}")
-        self.fill_mesh_cavities = bool(config.fill_mesh_cavities)
-        """Read by :func:`va_plugin.export.mesh.extract_mesh`."""
+        self.fill_mesh_cavities = bool(config.fill_mesh_cavities)  # read by :func:`va_plugin.export.mesh.extract_mesh`
         self.field = config.field.setup_for_scene(scene)
         if self.field.geometry_kind != "density":
             raise ConfigError("the ngp model needs a field whose geometry is a density")
@@ -84,10 +83,9 @@ class NGPModel(Model):
         self.occupancy_grid: Optional[OccupancyGrid] = \
             config.occupancy_grid.setup(bound=scene.scene_radius) if config.occupancy_grid.enabled else None
         self._views_marked = False
+        # per ray of the last training batch: samples evaluated with gradients, and by the gradient-free pass
         self.samples_per_ray = float(config.n_samples)
-        """Samples per ray evaluated with gradients in the last training batch."""
         self.probed_per_ray = 0.0
-        """Samples per ray evaluated by the gradient-free early-termination pass in the last training batch."""
 
     # -- training -------------------------------------------------------------------------------
     def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
