@@ -15,7 +15,7 @@ from conftest import tiny_config, write_syncdreamer_strip
 
 TINY = ["--set", "pipeline.datamanager.rays_per_batch=32", "--set", "pipeline.model.n_samples=8",
         "--set", "pipeline.model.n_importance=8", "--set", "pipeline.model.crossings_samples=16",
-        "--device", "cpu", "--texture-size", "64", "--turntable-frames", "4"]
+        "--device", "cpu", "--texture-size", "64", "--turntable-frames", "4", "--mesh-resolution", "32"]
 
 
 @pytest.fixture(scope="module")

@@ -54,6 +54,7 @@ def build_parser(methods) -> argparse.ArgumentParser:
                         help="input format (default auto: detected from the input)")
     parser.add_argument("--no-texture", action="store_true", help="vertex colours only (no mesh.glb, no turntable)")
     parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels, a power of two (default 1024)")
+    parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of the mesh (default 128)")
     parser.add_argument("--turntable-frames", type=int, default=36, help="frames of the turntable, 0 for none (default 36)")
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the method's)")
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 42)")
@@ -75,6 +76,8 @@ def check_args(args: argparse.Namespace, methods) -> None:
         raise ConfigError(f"input not found: {args.input}")
     if not args.no_texture:
         check_texture_size(args.texture_size)
+    if args.mesh_resolution < 8:
+        raise ConfigError(f"--mesh-resolution must be at least 8, got {args.mesh_resolution}")
     if args.turntable_frames < 0:
         raise ConfigError(f"--turntable-frames must be 0 or more, got {args.turntable_frames}")
     check_output_dir(args.out, "--out")
@@ -113,13 +116,14 @@ def main(argv: Optional[List[str]] = None) -> int:
     if args.out is None:
         args.out = Path("outputs") / "recon" / args.input.expanduser().resolve().stem
     check_args(args, methods)
-    from va_plugin.batch.job import ObjectJob, reconstruct
+    from va_plugin.batch.job import Evaluation, ObjectJob, reconstruct
     from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints
 
     out = args.out
     if list_checkpoints(out) and not args.resume:
         raise ConfigError(f"{out} already holds a run; pass --resume to continue it, or choose another --out")
     job = ObjectJob(args.input.name, args.input, out, args.method, options(args), threads=0,
+                    evaluation=Evaluation(mesh_resolution=args.mesh_resolution),
                     texture_size=0 if args.no_texture else args.texture_size,
                     turntable_frames=0 if args.no_texture else args.turntable_frames, progress=True)
     print(f"va-recon: {args.method} ({args.quality}) on {args.input} -> {out}", file=sys.stderr)
