@@ -141,6 +141,12 @@ def reconstruct(job: ObjectJob, on_resume=None) -> Dict[str, Any]:
     return out
 
 
+def say(job: ObjectJob, text: str) -> None:
+    """A stage line on stderr for a job that shows progress (``va-recon``)."""
+    if job.progress:
+        print(text, file=sys.stderr, flush=True)
+
+
 def export_mesh(pipeline, job: ObjectJob) -> Tuple[Any, Any, Dict[str, str]]:
     """The run's mesh as ``va-export mesh`` writes it: ``RUN/mesh.ply`` with vertex colours from the
     canonical colour path, and with a texture size also ``RUN/mesh.glb`` (``va-export mesh --texture``:
@@ -148,12 +154,14 @@ def export_mesh(pipeline, job: ObjectJob) -> Tuple[Any, Any, Dict[str, str]]:
     Returns the mesh, the textured mesh (None without a texture) and the paths written."""
     from va_plugin.export.mesh import extract_mesh, write_mesh
 
+    say(job, f"extracting the mesh ({job.evaluation.mesh_resolution}^3 grid)")
     mesh = extract_mesh(pipeline.model, resolution=job.evaluation.mesh_resolution)
     paths = {"mesh": str(write_mesh(mesh, Path(job.run_dir) / MESH_FILE))}
     textured = None
     if job.texture_size:
         from va_plugin.export.texture import texture_run_mesh
 
+        say(job, f"UV-unwrapping the mesh and baking a {job.texture_size}^2 texture from the views")
         textured, _, written = texture_run_mesh(pipeline, mesh, Path(job.run_dir) / TEXTURED_MESH_FILE,
                                                 job.texture_size, job.fusion, progress=job.progress)
         paths["textured_mesh"] = str(written[0])
