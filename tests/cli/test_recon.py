@@ -101,3 +101,12 @@ def test_a_model_that_renders_nothing_fails_the_run(tiny_scene, tmp_path):
     empty = tiny_config("neus", tiny_scene, tmp_path / "b", **{"pipeline.model.field.init_radius": 0.02})
     with pytest.raises(UnusableModel, match="renders almost nothing"):
         check_usable(empty.setup().pipeline, HealthConfig(final_check_after=1), steps=1)
+
+
+def test_export_mesh_help_says_defaults_and_the_textured_output(capsys):
+    from va_plugin.cli import export
+
+    with pytest.raises(SystemExit):
+        export.build_parser().parse_args(["mesh", "--help"])
+    text = " ".join(capsys.readouterr().out.split())
+    assert "RUN/mesh.glb with --texture" in text and "(default 128)" in text and "(default 1024)" in text
