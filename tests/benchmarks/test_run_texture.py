@@ -58,7 +58,8 @@ def test_field_scores_can_come_from_the_benchmark_row(run, tmp_path):
     row = {"psnr": 1.5, "ssim": 0.25, "lpips": 0.75, "evaluation": {"image_params": {"views": 3}}}
     (copy / "bench_row.json").write_text(json.dumps(row))
     out = tmp_path / "a.jsonl"
-    base = ["--runs", str(copy), "--texture-size", "32", "--timing-views", "0", "--reuse-field-scores"]
+    base = ["--runs", str(copy), "--texture-size", "32", "--timing-views", "0", "--reuse-field-scores",
+            "--mesh-resolution", "32"]
     assert script.main(base + ["--out", str(out)]) == 0
     record = json.loads(out.read_text())
     assert record["field"] == {"psnr": 1.5, "ssim": 0.25, "lpips": 0.75} and record["views"] == 3
@@ -84,7 +85,8 @@ def test_field_scores_come_from_the_results_folders_rows_when_the_marker_holds_n
              "evaluation": {"image_params": {"views": 3}}}
     mine = {**other, "key": "scene/neus", "run_dir": str(copy), "psnr": 1.5, "ssim": 0.25, "lpips": 0.75}
     (results / "rows.jsonl").write_text(json.dumps(other) + "\n" + json.dumps(mine) + "\n")
-    base = ["--runs", str(copy), "--texture-size", "32", "--timing-views", "0", "--reuse-field-scores"]
+    base = ["--runs", str(copy), "--texture-size", "32", "--timing-views", "0", "--reuse-field-scores",
+            "--mesh-resolution", "32"]
     assert script.main(base + ["--out", str(tmp_path / "a.jsonl")]) == 0
     record = json.loads((tmp_path / "a.jsonl").read_text())
     assert record["field"] == {"psnr": 1.5, "ssim": 0.25, "lpips": 0.75} and record["views"] == 3
