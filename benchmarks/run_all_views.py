@@ -22,7 +22,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any, Dict, List, Optional, Tuple
 
 import numpy as np
 
@@ -50,6 +50,7 @@ def run_one(job: Dict[str, Any]) -> Dict[str, Any]:
     import torch
 
     from va_plugin.cli.run import load_run
+    from va_plugin.config import apply_override
     from va_plugin.engine.trainer import train_run
     from va_plugin.eval.evaluate import evaluate_run
     from va_plugin.registry import get_method
@@ -61,12 +62,15 @@ def run_one(job: Dict[str, Any]) -> Dict[str, Any]:
     config.progress = False
     if job["steps"]:
         config.max_steps = job["steps"]
+    for override in job.get("overrides", ()):
+        apply_override(config, override)
     started = time.perf_counter()
     train_run(config, resume=True)
     pipeline, state = load_run(Path(job["run_dir"]), device="cpu")
     result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
     wall = time.perf_counter() - started
-    return {**{k: job[k] for k in ("key", "object", "views", "level")}, "cd": result["cd"], "iou": result["iou"],
+    return {**{k: job[k] for k in ("key", "object", "views", "level")},
+            "variant": job.get("variant", ""), "cd": result["cd"], "iou": result["iou"],
             "psnr": result["psnr"], "ssim": result["ssim"], "lpips": result.get("lpips"),
             "test_views": result["image_params"]["views"], "steps": int(state["step"]),
             "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}
@@ -89,29 +93,69 @@ def texture_fidelity(scene: Path) -> float:
     return float(np.mean(scores))
 
 
-def table(rows: List[Dict[str, Any]], counts: List[int]) -> str:
+def table(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]]) -> str:
+    """Per object, each configuration's (view count, variant) row; then each configuration paired with the first."""
+    name = lambda c: f"{c[0]} views" + (f" {c[1]}" if c[1] else "")  # noqa: E731
     objects = sorted({r["object"] for r in rows})
-    by = {(r["object"], r["views"]): r for r in rows}
-    lines = ["| object | " + " | ".join(f"{v} views: CD / IoU / PSNR / LPIPS / wall s" for v in counts) + " |",
-             "|---|" + "---|" * len(counts)]
+    by = {(r["object"], r["views"], r.get("variant", "")): r for r in rows}
+    lines = ["| object | " + " | ".join(f"{name(c)}: CD / IoU / PSNR / LPIPS / wall s" for c in configs) + " |",
+             "|---|" + "---|" * len(configs)]
     for o in objects:
-        cells = [" / ".join(f"{by[(o, v)][m]:.4g}" for m in ("cd", "iou", "psnr", "lpips", "wall_seconds"))
-                 if (o, v) in by else "-" for v in counts]
+        cells = [" / ".join(f"{by[(o, *c)][m]:.4g}" for m in ("cd", "iou", "psnr", "lpips", "wall_seconds"))
+                 if (o, *c) in by else "-" for c in configs]
         lines.append(f"| {o} | " + " | ".join(cells) + " |")
-    paired = [o for o in objects if all((o, v) in by for v in counts)]
-    if paired and len(counts) > 1:
-        base = counts[0]
-        lines.append(f"\nPaired over {len(paired)} objects, against {base} views:")
-        for v in counts[1:]:
-            ratio = lambda m: np.mean([by[(o, v)][m] for o in paired]) / np.mean([by[(o, base)][m] for o in paired])  # noqa: E731
-            diff = lambda m: np.mean([by[(o, v)][m] - by[(o, base)][m] for o in paired])  # noqa: E731
-            better = sum(by[(o, v)]["cd"] < by[(o, base)]["cd"] for o in paired)
-            lines.append(f"- {v} views: CD x{ratio('cd'):.3f} (lower on {better}/{len(paired)}), IoU {diff('iou'):+.3f}, "
-                         f"PSNR {diff('psnr'):+.2f} dB, LPIPS {diff('lpips'):+.4f}, wall x{ratio('wall_seconds'):.3f}")
-        for v in counts:
-            means = {m: np.mean([by[(o, v)][m] for o in paired]) for m in METRICS}
-            lines.append(f"- mean at {v} views: " + ", ".join(f"{m} {means[m]:.4g}" for m in METRICS))
+    base = configs[0]
+    for c in configs[1:]:
+        paired = [o for o in objects if (o, *base) in by and (o, *c) in by]
+        if not paired:
+            continue
+        ratio = lambda m: np.mean([by[(o, *c)][m] for o in paired]) / np.mean([by[(o, *base)][m] for o in paired])  # noqa: E731
+        diff = lambda m: np.mean([by[(o, *c)][m] - by[(o, *base)][m] for o in paired])  # noqa: E731
+        better = sum(by[(o, *c)]["cd"] < by[(o, *base)]["cd"] for o in paired)
+        worst_db = min(by[(o, *c)]["psnr"] - by[(o, *base)]["psnr"] for o in paired)
+        worst_cd = max(by[(o, *c)]["cd"] / by[(o, *base)]["cd"] for o in paired)
+        lines.append(f"- {name(c)} against {name(base)}, paired over {len(paired)} objects: CD x{ratio('cd'):.3f} "
+                     f"(lower on {better}/{len(paired)}; worst x{worst_cd:.3f}), IoU {diff('iou'):+.3f}, "
+                     f"PSNR {diff('psnr'):+.2f} dB (worst {worst_db:+.2f}), LPIPS {diff('lpips'):+.4f}, "
+                     f"wall x{ratio('wall_seconds'):.3f}, training x{ratio('train_seconds'):.3f}")
+    for c in configs:
+        present = [o for o in objects if (o, *c) in by]
+        if present:
+            means = {m: np.mean([by[(o, *c)][m] for o in present]) for m in METRICS}
+            lines.append(f"- mean of {name(c)} over {len(present)} objects: " +
+                         ", ".join(f"{m} {means[m]:.4g}" for m in METRICS))
     return "\n".join(lines) + "\n"
+
+
+def time_figure(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]], path: Path) -> Optional[Path]:
+    """Mean PSNR and mean CD against mean wall seconds, one point per configuration, over the objects that
+    every configuration has (None without matplotlib)."""
+    try:
+        import matplotlib
+        matplotlib.use("Agg")
+        import matplotlib.pyplot as plt
+    except ImportError:
+        return None
+    by = {(r["object"], r["views"], r.get("variant", "")): r for r in rows}
+    objects = sorted(o for o in {r["object"] for r in rows} if all((o, *c) in by for c in configs))
+    if not objects:
+        return None
+    fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
+    for c in configs:
+        wall = np.mean([by[(o, *c)]["wall_seconds"] for o in objects])
+        for ax, metric in zip(axes, ("psnr", "cd")):
+            ax.scatter([wall], [np.mean([by[(o, *c)][metric] for o in objects])])
+            ax.annotate(f"{c[0]}v {c[1] or 'default'}", (wall, np.mean([by[(o, *c)][metric] for o in objects])),
+                        fontsize=8, xytext=(4, 4), textcoords="offset points")
+    for ax, label in zip(axes, ("held-out PSNR (dB), higher is better", "Chamfer distance, lower is better")):
+        ax.set_xlabel("wall seconds per object (training + evaluated mesh)")
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+    fig.suptitle(f"Mean over {len(objects)} GSO objects")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+    plt.close(fig)
+    return path
 
 
 def main(argv=None) -> int:
@@ -121,15 +165,24 @@ def main(argv=None) -> int:
     parser.add_argument("--views", default="4,16", help="comma-separated view counts (4, 8, 12, 16)")
     parser.add_argument("--level", type=int, default=2)
     parser.add_argument("--steps", type=int, default=0, help="training steps (default: the method's)")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="PATH=VALUE",
+                        help="config override of every run (repeatable); name the variant with --variant")
+    parser.add_argument("--variant", default="", help="name of the overridden variant (part of each row's key)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("outputs/bench/all-views"))
     args = parser.parse_args(argv)
     from va_plugin.data.scenes import gso
+    from va_plugin.config import apply_override
     from va_plugin.errors import VAError
+    from va_plugin.registry import get_method
 
     try:
         names = args.objects.split(",") if args.objects else gso.list_objects(args.data_root)
         counts = [int(v) for v in args.views.split(",")]
+        if args.overrides and not args.variant:
+            raise VAError("--set needs --variant NAME, so that the overridden rows keep keys of their own")
+        for override in args.overrides:  # a mistyped key fails here, not in every worker
+            apply_override(get_method("neus").make_config(), override)
         args.out.mkdir(parents=True, exist_ok=True)
         rows_file = args.out / "rows.jsonl"
         done = {}
@@ -141,11 +194,13 @@ def main(argv=None) -> int:
         jobs = []
         for name in names:
             for views in counts:
-                key = f"{name}-l{args.level}-v{views}-s{args.steps or 'default'}"
+                key = f"{name}-l{args.level}-v{views}-s{args.steps or 'default'}" + \
+                    (f"-{args.variant}" if args.variant else "")
                 if key in done:
                     continue
                 scene = build(args.out / "scenes", args.data_root, name, views, args.level)
                 jobs.append({"key": key, "object": name, "views": views, "level": args.level, "steps": args.steps,
+                             "variant": args.variant, "overrides": list(args.overrides),
                              "scene": str(scene), "run_dir": str(args.out / "runs" / key)})
     except VAError as exc:
         sys.exit(f"error: {exc}")
@@ -157,8 +212,12 @@ def main(argv=None) -> int:
             done[row["key"]] = row
             print(json.dumps(row), file=sys.stderr)
     fidelity = {n: round(texture_fidelity(args.out / "scenes" / f"{n}-l{args.level}-v{counts[0]}"), 2) for n in names}
-    text = table(list(done.values()), counts) + f"\nBaked ground-truth texture at the rig's views, PSNR: {fidelity}\n"
+    variants = [""] + sorted({r.get("variant", "") for r in done.values()} - {""})
+    configs = [(v, variant) for variant in variants for v in counts
+               if any(r["views"] == v and r.get("variant", "") == variant for r in done.values())]
+    text = table(list(done.values()), configs) + f"\nBaked ground-truth texture at the rig's views, PSNR: {fidelity}\n"
     (args.out / "all_views.md").write_text(text)
+    time_figure(list(done.values()), configs, args.out / "time_accuracy.png")
     print(text)
     return 0
 
