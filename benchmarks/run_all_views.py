@@ -201,8 +201,8 @@ def stop_lines(rows: List[Dict[str, Any]], label: str, max_db: float = 0.3, max_
 
 
 def time_figure(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]], path: Path) -> Optional[Path]:
-    """Mean PSNR and mean CD against mean wall seconds, one point per configuration, over the objects that
-    every configuration has (None without matplotlib)."""
+    """Mean PSNR and mean CD against mean training seconds, one point per configuration, over the objects
+    that every configuration has (None without matplotlib)."""
     try:
         import matplotlib
         matplotlib.use("Agg")
@@ -215,13 +215,13 @@ def time_figure(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]], path
         return None
     fig, axes = plt.subplots(1, 2, figsize=(9, 3.6))
     for c in configs:
-        wall = np.mean([by[(o, *c)]["wall_seconds"] for o in objects])
+        wall = np.mean([by[(o, *c)]["train_seconds"] for o in objects])
         for ax, metric in zip(axes, ("psnr", "cd")):
             ax.scatter([wall], [np.mean([by[(o, *c)][metric] for o in objects])])
             ax.annotate(f"{c[0]}v {c[1] or 'default'}", (wall, np.mean([by[(o, *c)][metric] for o in objects])),
                         fontsize=8, xytext=(4, 4), textcoords="offset points")
     for ax, label in zip(axes, ("held-out PSNR (dB), higher is better", "Chamfer distance, lower is better")):
-        ax.set_xlabel("wall seconds per object (training + evaluated mesh)")
+        ax.set_xlabel("training seconds per object (one thread)")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     fig.suptitle(f"Mean over {len(objects)} GSO objects")
