@@ -69,55 +69,11 @@ def run_one(job: Dict[str, Any]) -> Dict[str, Any]:
     pipeline, state = load_run(Path(job["run_dir"]), device="cpu")
     result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
     wall = time.perf_counter() - started
-    row = {**{k: job[k] for k in ("key", "object", "views", "level")},
-           "variant": job.get("variant", ""), "cd": result["cd"], "iou": result["iou"],
-           "psnr": result["psnr"], "ssim": result["ssim"], "lpips": result.get("lpips"),
-           "test_views": result["image_params"]["views"], "steps": int(state["step"]),
-           "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}
-    if config.stop.record_only:
-        row["stop"] = stopped_row(Path(job["run_dir"]), config.stop, int(state["step"]))
-    return row
-
-
-def stop_decision(run_dir: Path, tolerance: float, patience: int, max_steps: int) -> Optional[int]:
-    """The step at which the stopping rule would have ended a run recorded with ``stop.record_only``, from
-    its logged checks (None: it would have run to ``max_steps``)."""
-    from va_plugin.engine.metrics_log import read_records
-
-    settled = 0
-    for record in read_records(run_dir):
-        if "stop_change" not in record:
-            continue
-        change = record["stop_change"]
-        settled = settled + 1 if change is not None and change < tolerance else 0
-        if settled >= patience and int(record["step"]) < max_steps:
-            return int(record["step"])
-    return None
-
-
-def stopped_row(run_dir: Path, stop, max_steps: int) -> Dict[str, Any]:
-    """What the stopping rule would have given: its step, the changes it read, and the scores of the
-    checkpoint kept at that step (those of the full run when it would not have stopped)."""
-    import shutil
-
-    from va_plugin.cli.run import load_run
-    from va_plugin.engine.metrics_log import read_records
-    from va_plugin.eval.evaluate import evaluate_run
-
-    changes = {int(r["step"]): r["stop_change"] for r in read_records(run_dir) if "stop_change" in r}
-    step = stop_decision(run_dir, stop.tolerance, stop.patience, max_steps)
-    out: Dict[str, Any] = {"tolerance": stop.tolerance, "patience": stop.patience, "changes": changes, "step": step}
-    if step is None:
-        return out
-    scratch = run_dir / "settling" / "at-stop"
-    (scratch / "checkpoints").mkdir(parents=True, exist_ok=True)
-    shutil.copy(run_dir / "settling" / f"step-{step:07d}.ckpt", scratch / "checkpoints" / f"step-{step:07d}.ckpt")
-    pipeline, state = load_run(scratch, device="cpu")
-    result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
-    shutil.rmtree(scratch)
-    out.update({"cd": result["cd"], "iou": result["iou"], "psnr": result["psnr"], "lpips": result.get("lpips"),
-                "train_seconds": round(float(state["train_seconds"]), 1)})
-    return out
+    return {**{k: job[k] for k in ("key", "object", "views", "level")},
+            "variant": job.get("variant", ""), "cd": result["cd"], "iou": result["iou"],
+            "psnr": result["psnr"], "ssim": result["ssim"], "lpips": result.get("lpips"),
+            "test_views": result["image_params"]["views"], "steps": int(state["step"]),
+            "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}
 
 
 def texture_fidelity(scene: Path) -> float:
@@ -163,41 +119,12 @@ def table(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]]) -> str:
                      f"PSNR {diff('psnr'):+.2f} dB (worst {worst_db:+.2f}), LPIPS {diff('lpips'):+.4f}, "
                      f"wall x{ratio('wall_seconds'):.3f}, training x{ratio('train_seconds'):.3f}")
     for c in configs:
-        lines.extend(stop_lines([by[(o, *c)] for o in objects if (o, *c) in by and by[(o, *c)].get("stop")], name(c)))
-    for c in configs:
         present = [o for o in objects if (o, *c) in by]
         if present:
             means = {m: np.mean([by[(o, *c)][m] for o in present]) for m in METRICS}
             lines.append(f"- mean of {name(c)} over {len(present)} objects: " +
                          ", ".join(f"{m} {means[m]:.4g}" for m in METRICS))
     return "\n".join(lines) + "\n"
-
-
-def stop_lines(rows: List[Dict[str, Any]], label: str, max_db: float = 0.3, max_cd: float = 1.05) -> List[str]:
-    """The stopping rule's decisions on rows recorded with ``stop.record_only``: per object, the step, the
-    training seconds and the scores against the full budget's; right when within ``max_db`` and ``max_cd``."""
-    if not rows:
-        return []
-    lines = [f"\nThe stopping rule on {label} (tolerance {rows[0]['stop']['tolerance']}, patience "
-             f"{rows[0]['stop']['patience']}):", "",
-             "| object | stopped at | training s (full) | PSNR against full | CD against full | right |", "|---|---|---|---|---|---|"]
-    right = saved = 0
-    for r in sorted(rows, key=lambda r: r["object"]):
-        stop = r["stop"]
-        if stop["step"] is None:
-            lines.append(f"| {r['object']} | - (ran {r['steps']}) | {r['train_seconds']:.0f} | 0 | x1 | yes |")
-            right += 1
-            continue
-        db, cd = stop["psnr"] - r["psnr"], stop["cd"] / r["cd"]
-        ok = db >= -max_db and cd <= max_cd
-        right += ok
-        saved += r["train_seconds"] - stop["train_seconds"]
-        lines.append(f"| {r['object']} | {stop['step']} | {stop['train_seconds']:.0f} ({r['train_seconds']:.0f}) | "
-                     f"{db:+.2f} dB | x{cd:.3f} | {'yes' if ok else 'no'} |")
-    total = sum(r["train_seconds"] for r in rows)
-    lines.append(f"\nRight on {right}/{len(rows)} (within {max_db} dB and {max_cd - 1:.0%} CD of the full budget's); "
-                 f"training time saved: {saved:.0f} of {total:.0f} s ({saved / max(total, 1e-9):.0%}).")
-    return lines
 
 
 def time_figure(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]], path: Path) -> Optional[Path]:

@@ -44,23 +44,3 @@ def test_figure_plots_the_objects_every_configuration_has(allviews, tmp_path):
     path = allviews.time_figure(rows, [(16, ""), (16, "half")], tmp_path / "t.png")
     assert path is not None and path.stat().st_size > 1000
     assert allviews.time_figure(rows[:1], [(16, ""), (16, "half")], tmp_path / "u.png") is None
-
-
-def test_stop_decision_replays_the_rule_from_the_log_and_the_table_scores_it(allviews, tmp_path):
-    from va_plugin.engine.metrics_log import append_record
-
-    for step, change in ((500, None), (600, 0.02), (700, 0.004), (800, 0.02), (900, 0.003), (1000, 0.002)):
-        append_record(tmp_path, {"step": step, "stop_change": change, "stop_settled": 0})
-    assert allviews.stop_decision(tmp_path, 0.01, 2, 2000) == 1000
-    assert allviews.stop_decision(tmp_path, 0.01, 1, 2000) == 700
-    assert allviews.stop_decision(tmp_path, 0.01, 2, 1000) is None  # the budget's end: nothing saved
-    rows = [{**row("a", 16, "r", 0.010, 24.0, 110), "steps": 2000,
-             "stop": {"tolerance": 0.01, "patience": 2, "step": 1000, "psnr": 23.9, "cd": 0.0104,
-                      "train_seconds": 50.0}},
-            {**row("b", 16, "r", 0.020, 22.0, 110), "steps": 2000,
-             "stop": {"tolerance": 0.01, "patience": 2, "step": 1200, "psnr": 21.5, "cd": 0.02,
-                      "train_seconds": 60.0}}]
-    text = "\n".join(allviews.stop_lines(rows, "16 views r"))
-    assert "| a | 1000 | 50 (100) | -0.10 dB | x1.040 | yes |" in text
-    assert "| b | 1200 | 60 (100) | -0.50 dB | x1.000 | no |" in text
-    assert "Right on 1/2" in text and "saved: 90 of 200 s (45%)" in text

@@ -2,7 +2,7 @@ import pytest
 import torch
 
 from conftest import tiny_config
-from va_plugin.model_components.neus import sdf_band, visible
+from va_plugin.model_components.neus import sdf_band
 
 
 def _trainer(tiny_scene, tmp_path, **overrides):
@@ -23,19 +23,7 @@ def test_sdf_band_hand_computed():
     assert sdf_band(edges, -sdf, t, torch.tensor(1e4), margin=2.0).all()
 
 
-def test_visible_hand_computed():
-    edges = torch.tensor([[0.0, 1.0, 2.0, 3.0]])
-    sdf = torch.tensor([[1.0, 0.5, -0.5, -1.0]])
-    t = torch.tensor([[0.5, 1.5, 2.5]])
-    # a falling SDF's section alphas telescope: the light reaching section 2 is sigmoid(-5) / sigmoid(10)
-    # = 0.00669 (log -5.007) at inv_s 10, so margin 3 drops section 2's sample and margin 6 keeps it
-    assert visible(edges, sdf, t, 10.0, margin=3.0).tolist() == [[True, True, False]]
-    assert visible(edges, sdf, t, 10.0, margin=6.0).all()
-    assert visible(edges, -sdf, t, 10.0, margin=3.0).all()  # leaving a body absorbs nothing
-
-
-@pytest.mark.parametrize("hidden", [False, True])
-def test_far_sample_skipping_renders_like_every_sample(hidden, tiny_scene, tmp_path):
+def test_far_sample_skipping_renders_like_every_sample(tiny_scene, tmp_path):
     trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.n_samples": 16,
                                                 "pipeline.model.skip_far_samples": False})
     model = trainer.model
@@ -46,19 +34,9 @@ def test_far_sample_skipping_renders_like_every_sample(hidden, tiny_scene, tmp_p
     dense = model.get_outputs(rays)
     dense_samples = model.samples_per_ray
     model.config.skip_far_samples = True
-    model.config.skip_hidden_samples = hidden
     torch.manual_seed(1)  # the same jitter
     skipped = model.get_outputs(rays)
     assert model.samples_per_ray < 0.9 * dense_samples
-    if hidden:  # fewer again than the band alone keeps
-        model.config.skip_hidden_samples = False
-        torch.manual_seed(1)
-        model.get_outputs(rays)
-        band_only = model.samples_per_ray
-        model.config.skip_hidden_samples = True
-        torch.manual_seed(1)
-        model.get_outputs(rays)
-        assert model.samples_per_ray < band_only
     assert model.samples_per_ray == pytest.approx(skipped["weights"].numel() / len(rays))
     assert skipped["gradients"].shape == (skipped["weights"].numel(), 3)
     # a dropped sample had alpha at NeuS's 1e-5 floor (1e-5 / (Phi + 1e-5)): at most ~30 of them per ray

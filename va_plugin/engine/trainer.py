@@ -21,7 +21,6 @@ from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
 from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check_usable
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
-from va_plugin.engine.stopping import StopConfig, SurfaceSettling
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.pipelines.base import Pipeline, PipelineConfig
 from va_plugin.utils.device import pick_device
@@ -73,8 +72,6 @@ class TrainerConfig(InstantiateConfig):
     """Show a progress bar."""
     health: HealthConfig = field(default_factory=HealthConfig)
     """What counts as a bad step (non-finite, blow-up) and how the run recovers from it."""
-    stop: StopConfig = field(default_factory=StopConfig)
-    """The stopping rule: end the run before ``max_steps`` once the surface stops changing."""
 
 
 def schedule_horizon(config: "TrainerConfig") -> int:
@@ -202,8 +199,6 @@ class Trainer:
             announce=self.announce, schedule_steps=self.horizon)
         self.step = 0
         self.train_seconds = 0.0
-        self.settling = SurfaceSettling(config.stop, self.horizon)
-        self.stopped = False  # the stopping rule ended the run
         self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"),
                                    grace_steps=config.scheduler.warmup_steps)
 
@@ -242,7 +237,6 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "lr_multipliers": dict(self.lr_multipliers),
-            "stopped": self.stopped,
             "health": self.guard.state_dict(),
             "datamanager": self.pipeline.datamanager.state_dict(),
             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),
@@ -273,7 +267,6 @@ class Trainer:
         self.step = int(state["step"])
         self.train_seconds = float(state.get("train_seconds", 0.0))
         self.lr_multipliers.update(state.get("lr_multipliers", {}))
-        self.stopped = bool(state.get("stopped", False))
         self.guard.load_state_dict(state.get("health", {}))
         self.pipeline.datamanager.load_state_dict(state["datamanager"])
         rng = state["rng"]
@@ -385,7 +378,7 @@ class Trainer:
                    desc=cfg.method_name, leave=True)
         record: Dict[str, Any] = {}
         recent: List[float] = []
-        while self.step < cfg.max_steps and not self.stopped:
+        while self.step < cfg.max_steps:
             record, elapsed = self.run_step()
             recent = (recent + [elapsed])[-20:]
             bar.update(1)
@@ -400,30 +393,10 @@ class Trainer:
                 metrics, _ = self.pipeline.evaluate_views(cfg.eval_views)
                 if metrics:
                     self.log({"step": self.step, **metrics})
-            if self.settling.due(self.step):
-                self._check_settling()
-            if self.step % cfg.checkpoint_every == 0 or self.step == cfg.max_steps or self.stopped:
+            if self.step % cfg.checkpoint_every == 0 or self.step == cfg.max_steps:
                 self.save_checkpoint()
         bar.close()
         return record
-
-
-    def _check_settling(self) -> None:
-        """One check of the stopping rule (its seconds count as training): log it, and end the run (or,
-        recording only, keep a checkpoint under ``settling/``) once the surface has settled."""
-        start = time.perf_counter()
-        result = self.settling.check(self.model)
-        self.train_seconds += time.perf_counter() - start
-        change = result["change"] if result["change"] == result["change"] else None  # NaN at the first check
-        self.log({"step": self.step, "stop_change": change, "stop_settled": result["settled"]})
-        if self.config.stop.record_only:  # the model and config only: enough to mesh and evaluate
-            state = {k: v for k, v in self.state_dict().items() if k != "optimizer"}
-            atomic_save(state, self.run_dir / "settling" / f"step-{self.step:07d}.ckpt")
-        elif self.settling.stop and self.step < self.config.max_steps:
-            self.stopped = True
-            self.announce(self.step, f"the surface has settled (under {self.config.stop.tolerance:.1%} of it "
-                                     f"changed in each of the last {self.config.stop.patience} checks): stopping "
-                                     f"{self.config.max_steps - self.step} steps early", stopped=True)
 
 
 class TrainingInterrupted(KeyboardInterrupt):

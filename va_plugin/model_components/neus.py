@@ -67,23 +67,6 @@ def sdf_band(coarse_edges: torch.Tensor, coarse_sdf: torch.Tensor, t_mid: torch.
     return lowest.gather(1, section) * inv_s < margin
 
 
-def visible(coarse_edges: torch.Tensor, coarse_sdf: torch.Tensor, t_mid: torch.Tensor, inv_s: float,
-            margin: float) -> torch.Tensor:
-    """Which samples the surface in front of them may leave visible, from the SDF known at the coarse edges.
-
-    The transmittance at the start of each coarse section is the product of the sections' alphas before it
-    (:func:`section_alpha` at ``inv_s``); a finer sampling of the same SDF lets through no more light, so a
-    sample in a section whose start sees a transmittance below ``exp(-margin)`` contributes less than that
-    to the render. ``coarse_edges, coarse_sdf``: ``[n_rays, m]``; ``t_mid``: ``[n_rays, n]``; returns
-    ``[n_rays, n]`` bool, True for samples to evaluate."""
-    alpha = section_alpha(coarse_sdf, inv_s)
-    log_through = torch.log((1.0 - alpha).clamp_min(1e-30)).cumsum(-1)
-    log_start = torch.cat([torch.zeros_like(log_through[:, :1]), log_through[:, :-1]], dim=-1)  # [n_rays, m - 1]
-    section = torch.searchsorted(coarse_edges.contiguous(), t_mid.contiguous(), right=True) - 1
-    section = section.clamp(0, log_start.shape[1] - 1)
-    return log_start.gather(1, section) > -margin
-
-
 def surface_crossings(sdf_fn: Callable[[torch.Tensor], torch.Tensor], origins: torch.Tensor,
                       directions: torch.Tensor, nears: torch.Tensor, fars: torch.Tensor,
                       n_samples: int, band: Optional[float] = 6.0) -> torch.Tensor:

@@ -13,8 +13,7 @@ from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
-from va_plugin.model_components.neus import (SingleVariance, neus_alpha, sdf_band, section_alpha, surface_crossings,
-                                             visible)
+from va_plugin.model_components.neus import SingleVariance, neus_alpha, sdf_band, section_alpha, surface_crossings
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo
@@ -45,9 +44,6 @@ class NeuSModelConfig(ModelConfig):
     """Evaluate with gradients only the samples that the coarse SDF says may lie within
     ``skip_margin / inv_s`` of the surface, or inside it (see ``sdf_band``); the others get alpha 0
     and no eikonal term."""
-    skip_hidden_samples: bool = False
-    """Also leave out (alpha 0, no eikonal term) the samples behind a surface that the coarse SDF says
-    lets less than exp(-``skip_margin``) of the light through (see ``visible``)."""
     variance_init: float = 0.3
     """Initial v of inv_s = exp(10 v)."""
     inv_s_floor: float = 0.0
@@ -204,10 +200,7 @@ class NeuSModel(Model):
         keep = None
         if self.config.skip_far_samples:
             t_mid = 0.5 * (fine[:, 1:] + fine[:, :-1])
-            inv_s = self.variance.inv_s().detach()
-            keep = sdf_band(edges, sdf_coarse, t_mid, inv_s, self.config.skip_margin)
-            if self.config.skip_hidden_samples:
-                keep &= visible(edges, sdf_coarse, t_mid, float(inv_s), self.config.skip_margin)
+            keep = sdf_band(edges, sdf_coarse, t_mid, self.variance.inv_s().detach(), self.config.skip_margin)
         inner = self._render(sub, fine, keep)
         if self.training:
             self.samples_per_ray = inner["weights"].numel() / max(n_rays, 1)
