@@ -8,8 +8,12 @@ texture reproduces the rig's own renders. Each row: CD, IoU (the ground-truth me
 8 off-rig views), wall seconds from the start of training to the evaluated mesh. Rows go to OUT/rows.jsonl
 (a rerun skips finished ones) and the table to OUT/all_views.md.
 
+A variant of the default (``--set KEY=VALUE ... --variant NAME``) is run into the same folder: the table pairs
+it with the default at the same view count, object by object, and ``time_accuracy.png`` plots each
+configuration's mean PSNR and CD against its mean training seconds.
+
     python benchmarks/run_all_views.py --data-root ../shared/data/gso [--objects alarm,bell] [--views 4,16]
-        [--level 2] [--steps N] [--jobs 2] [--out outputs/bench/all-views]
+        [--level 2] [--steps N] [--set KEY=VALUE --variant NAME] [--jobs 2] [--out outputs/bench/all-views]
 """
 
 from __future__ import annotations
@@ -94,7 +98,8 @@ def texture_fidelity(scene: Path) -> float:
 
 
 def table(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]]) -> str:
-    """Per object, each configuration's (view count, variant) row; then each configuration paired with the first."""
+    """Per object, each configuration's (view count, variant) row; then each configuration paired with the
+    default at its view count (a variant) or with the first configuration (a view count)."""
     name = lambda c: f"{c[0]} views" + (f" {c[1]}" if c[1] else "")  # noqa: E731
     objects = sorted({r["object"] for r in rows})
     by = {(r["object"], r["views"], r.get("variant", "")): r for r in rows}
@@ -104,8 +109,8 @@ def table(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]]) -> str:
         cells = [" / ".join(f"{by[(o, *c)][m]:.4g}" for m in ("cd", "iou", "psnr", "lpips", "wall_seconds"))
                  if (o, *c) in by else "-" for c in configs]
         lines.append(f"| {o} | " + " | ".join(cells) + " |")
-    base = configs[0]
     for c in configs[1:]:
+        base = (c[0], "") if c[1] and (c[0], "") in configs else configs[0]
         paired = [o for o in objects if (o, *base) in by and (o, *c) in by]
         if not paired:
             continue

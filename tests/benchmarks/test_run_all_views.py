@@ -44,3 +44,11 @@ def test_figure_plots_the_objects_every_configuration_has(allviews, tmp_path):
     path = allviews.time_figure(rows, [(16, ""), (16, "half")], tmp_path / "t.png")
     assert path is not None and path.stat().st_size > 1000
     assert allviews.time_figure(rows[:1], [(16, ""), (16, "half")], tmp_path / "u.png") is None
+
+
+def test_a_variant_is_paired_with_the_default_at_its_own_view_count(allviews):
+    rows = [row("a", 4, "", 0.02, 22.0, 100), row("a", 16, "", 0.010, 24.0, 100),
+            row("a", 16, "half", 0.011, 23.0, 50)]
+    text = allviews.table(rows, [(4, ""), (16, ""), (16, "half")])
+    assert "16 views against 4 views, paired over 1 objects: CD x0.500" in text
+    assert "16 views half against 16 views, paired over 1 objects: CD x1.100" in text
