@@ -17,16 +17,16 @@ def build_parser() -> argparse.ArgumentParser:
     mesh = sub.add_parser("mesh", help="marching-cubes mesh with vertex colours, or textured with --texture")
     mesh.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
     mesh.add_argument("--output", type=Path, default=None, help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply; RUN/mesh.glb with --texture)")
-    mesh.add_argument("--resolution", type=int, default=128, help="marching-cubes grid resolution (default 128)")
+    mesh.add_argument("--resolution", type=int, default=128, help="marching-cubes grid resolution (default %(default)s)")
     mesh.add_argument("--largest-component", action="store_true", help="keep only the largest connected part")
     mesh.add_argument("--texture", action="store_true",
                       help="UV-unwrap the mesh and bake a texture from the input views (.glb or .obj+.mtl+.png)")
-    mesh.add_argument("--texture-size", type=int, default=1024, help="texture side in texels, a power of two (default 1024)")
+    mesh.add_argument("--texture-size", type=int, default=1024, help="texture side in texels, a power of two (default %(default)s)")
     mesh.add_argument("--max-faces", type=int, default=None,
                       help="with --texture: simplify the mesh to at most this many faces before the UV unwrap "
                       "(default 40000; 0 keeps every face)")
     mesh.add_argument("--fusion", choices=("robust", "mean"), default="robust",
-                      help="how disagreeing views are fused per texel: robust consensus or weighted mean (default robust)")
+                      help="how disagreeing views are fused per texel: robust consensus or weighted mean (default %(default)s)")
     mesh.add_argument("--no-harmonise", action="store_true",
                       help="robust fusion: skip levelling each view's colour gains against the others")
     mesh.add_argument("--use-inconsistency", action="store_true",
