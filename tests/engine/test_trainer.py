@@ -48,6 +48,37 @@ def test_resume_continues_bitwise(tiny_scene, tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a), "resumed run differs from the uninterrupted one"
 
 
+def test_a_checkpoint_with_the_entry_major_hash_table_resumes_bitwise(tiny_scene, tmp_path):
+    """A checkpoint written when the hash table (and its Adam moments) was stored ``[entries, F]``
+    resumes exactly as one in today's feature-major layout."""
+    runs = {}
+    for name in ("today", "earlier"):
+        first = tiny_config("neus", tiny_scene, tmp_path / name, steps=4, checkpoint_every=2).setup()
+        first.callbacks.append(TrainingCallback(lambda step, trainer: step == 2 and _interrupt(), BEFORE_STEP))
+        with pytest.raises(KeyboardInterrupt):
+            first.train()
+        if name == "earlier":
+            path = list_checkpoints(tmp_path / name)[-1]
+            state = torch.load(path, weights_only=False)
+            key = next(k for k in state["model"] if k.endswith("encoding.table"))
+            table = state["model"][key]
+            state["model"][key] = table.t().contiguous()
+            moments = [m for m in state["optimizer"]["state"].values() if m["exp_avg"].shape == table.shape]
+            assert len(moments) == 1
+            for moment in ("exp_avg", "exp_avg_sq"):
+                moments[0][moment] = moments[0][moment].t().contiguous()
+            atomic_save(state, path)
+        second = tiny_config("neus", tiny_scene, tmp_path / name, steps=4, checkpoint_every=2).setup()
+        assert second.resume() and second.step == 2
+        second.train()
+        runs[name] = _params(second)
+    assert all(torch.equal(runs["today"][k], runs["earlier"][k]) for k in runs["today"])
+
+
+def _interrupt():
+    raise KeyboardInterrupt
+
+
 def test_half_written_checkpoint_falls_back_to_previous(tiny_scene, tmp_path):
     trainer = tiny_config("neus", tiny_scene, tmp_path / "run", steps=2, checkpoint_every=1).setup()
     trainer.train()

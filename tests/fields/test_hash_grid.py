@@ -35,7 +35,7 @@ def _points(n: int, bound: float, seed: int = 0) -> torch.Tensor:
 
 def _reference(encoding: HashGridEncoding, x: torch.Tensor) -> torch.Tensor:
     return hash_grid_reference(
-        x, encoding.table, encoding.offsets, encoding.resolutions, encoding.hashmap_size, encoding.bound
+        x, encoding.table.t(), encoding.offsets, encoding.resolutions, encoding.hashmap_size, encoding.bound
     )
 
 
@@ -50,7 +50,7 @@ def test_resolutions_follow_the_geometric_schedule():
 def test_one_table_holds_every_level():
     encoding = HashGridEncoding(**SMALL, init_scale=1e-3)
     sizes = level_table_sizes(encoding.resolutions, encoding.hashmap_size)
-    assert encoding.table.shape == (sum(sizes), 2)
+    assert encoding.table.shape == (2, sum(sizes)) and encoding.table.is_contiguous()  # feature-major
     assert encoding.offsets == [sum(sizes[:level]) for level in range(len(sizes))]
     assert max(sizes) == encoding.hashmap_size and encoding.n_dense_levels == 3
     assert encoding.table.abs().max() <= 1e-3
@@ -200,9 +200,29 @@ def test_active_level_mask_zeroes_the_finest_levels():
     assert (partial[:, ~mask] == 0).all()
     torch.testing.assert_close(partial[:, mask], full[:, mask])
     (table_grad,) = torch.autograd.grad(partial.sum(), encoding.table)
-    assert (table_grad[encoding.offsets[3] :] == 0).all() and table_grad[: encoding.offsets[3]].abs().sum() > 0
+    assert (table_grad[:, encoding.offsets[3] :] == 0).all() and table_grad[:, : encoding.offsets[3]].abs().sum() > 0
     assert (encoding(x, n_active_levels=0) == 0).all()
     torch.testing.assert_close(encoding(x, n_active_levels=8), full)
     with pytest.raises(ValueError):
         encoding.set_active_levels(9)
 
+
+
+def test_the_table_is_drawn_entry_by_entry_and_stored_feature_major():
+    torch.manual_seed(3)
+    encoding = HashGridEncoding(**SMALL, init_scale=0.5)
+    torch.manual_seed(3)
+    entries = torch.empty(encoding.table.shape[1], encoding.table.shape[0]).uniform_(-0.5, 0.5)
+    assert torch.equal(encoding.table.detach(), entries.t())
+
+
+def test_an_entry_major_checkpoint_loads_transposed():
+    """A table saved as ``[total_entries, F]`` (the earlier layout) loads into the feature-major one and
+    encodes exactly as before."""
+    saved = HashGridEncoding(**SMALL, init_scale=1.0)
+    x = _points(300, bound=1.0)
+    loaded = HashGridEncoding(**SMALL)
+    loaded.load_state_dict({"table": saved.table.detach().t().contiguous()})
+    assert torch.equal(loaded(x), saved(x))
+    with pytest.raises(RuntimeError):
+        loaded.load_state_dict({"table": torch.zeros(3, 5)})

@@ -116,6 +116,17 @@ def make_adam(param_groups) -> torch.optim.Optimizer:
     return torch.optim.Adam(param_groups)
 
 
+def _transpose_stale_moments(optimizer: torch.optim.Optimizer) -> None:
+    """Transpose optimizer moments saved for a matrix parameter in the transposed layout (a hash table
+    checkpointed entry-major, now stored feature-major), so that a resumed run steps as before."""
+    for group in optimizer.param_groups:
+        for param in group["params"]:
+            for name, value in optimizer.state.get(param, {}).items():
+                if (torch.is_tensor(value) and value.dim() == 2 and value.shape != param.shape
+                        and value.shape == param.shape[::-1]):
+                    optimizer.state[param][name] = value.t().contiguous()
+
+
 class RemovedOption:
     """Stands in, in a loaded checkpoint's config, for an option class this version no longer has."""
 
@@ -261,6 +272,7 @@ class Trainer:
         try:
             self.model.load_state_dict(state["model"])
             self.optimizer.load_state_dict(state["optimizer"])
+            _transpose_stale_moments(self.optimizer)
         except (RuntimeError, ValueError, KeyError) as exc:
             first = str(exc).strip().splitlines()[0]
             raise CheckpointError(f"checkpoint {state.get('path')} does not fit this config ({first})") from None

@@ -4,8 +4,9 @@ A point is looked up in ``L`` grids of growing resolution: coarse levels whose v
 table are indexed directly, finer ones hash their vertices into ``T`` entries. Each level trilinearly
 interpolates its cell's 8 corner features; the levels are concatenated.
 
-All levels share one ``[total_entries, F]`` table with per-level offsets, so one gather and one
-``index_add_`` serve every level. Tensors are laid out ``[F, n_levels, 8, n_points]`` so broadcasts run
+All levels share one table with per-level offsets, so one gather and one ``index_add_`` serve every
+level. The table is stored feature-major, ``[F, total_entries]``, so that gather and scatter run along
+contiguous rows, and the gathered tensors are laid out ``[F, n_levels, 8, n_points]`` so broadcasts run
 along the long, contiguous point axis. On CPU points go in chunks of :data:`CPU_CHUNK_POINTS` so the
 allocator recycles the temporaries.
 
@@ -141,15 +142,14 @@ def _corners(x01: torch.Tensor, levels: GridLevels) -> Tuple[torch.Tensor, torch
 
 
 def _gather(table: torch.Tensor, indices: torch.Tensor) -> torch.Tensor:
-    """Corner features ``[F, n_levels, 8, n_points]`` for table rows ``[n_levels, 8, n_points]``, gathered
-    one table column at a time."""
-    flat = indices.reshape(-1)
-    columns = [table[:, f].index_select(0, flat) for f in range(table.shape[1])]
-    return torch.stack(columns).view(table.shape[1], *indices.shape)
+    """Corner features ``[F, n_levels, 8, n_points]`` of table entries ``[n_levels, 8, n_points]`` from the
+    feature-major ``table [F, total_entries]``, in one gather."""
+    return table.index_select(1, indices.reshape(-1)).view(table.shape[0], *indices.shape)
 
 
 def encode_points(x01: torch.Tensor, table: torch.Tensor, levels: GridLevels) -> torch.Tensor:
-    """Differentiable encoding of points ``[n_points, 3]`` in ``[0, 1]``. ``[n_points, n_levels * F]``."""
+    """Differentiable encoding of points ``[n_points, 3]`` in ``[0, 1]`` with the feature-major ``table [F,
+    total_entries]``. ``[n_points, n_levels * F]``."""
     indices, frac = _corners(x01, levels)
     per_level = (_gather(table, indices) * corner_weights(frac)).sum(2)
     return per_level.permute(2, 1, 0).reshape(x01.shape[0], -1)
@@ -181,7 +181,7 @@ class _HashGridFunction(torch.autograd.Function):
         ctx.levels = levels
         ctx.save_for_backward(x01, table)
         n_points, chunk = x01.shape[0], _chunk_size(x01)
-        out = x01.new_empty(n_points, levels.offsets.shape[0] * table.shape[1])
+        out = x01.new_empty(n_points, levels.offsets.shape[0] * table.shape[0])
         for start in range(0, n_points, chunk):
             out[start : start + chunk] = encode_points(x01[start : start + chunk], table, levels)
         return out
@@ -219,16 +219,16 @@ def _backward_chunk(
     grad_table: Optional[torch.Tensor],
     need_x: bool,
 ) -> Optional[torch.Tensor]:
-    """Accumulate one chunk's table gradient into ``grad_table`` ``[total_entries, F]`` (if given) and
+    """Accumulate one chunk's table gradient into ``grad_table`` ``[F, total_entries]`` (if given) and
     return its point gradient ``[n_points, 3]`` (if ``need_x``); ``x01`` ``[n_points, 3]``, ``grad_out``
     ``[n_points, n_levels * F]``."""
     indices, frac = _corners(x01, levels)
-    n_levels, n_features = indices.shape[0], table.shape[1]
+    n_levels, n_features = indices.shape[0], table.shape[0]
     grad_levels = grad_out.reshape(-1, n_levels, n_features).permute(2, 1, 0).contiguous()
     if grad_table is not None:
         rows = grad_levels[:, :, None, :] * corner_weights(frac)
-        # One scatter for all levels and features, column-wise like the gather.
-        grad_table.t().index_add_(1, indices.reshape(-1), rows.view(n_features, -1))
+        # One scatter for all levels and features, along the table's contiguous rows like the gather.
+        grad_table.index_add_(1, indices.reshape(-1), rows.view(n_features, -1))
     if not need_x:
         return None
     corner_grad = (_gather(table, indices) * grad_levels[:, :, None, :]).sum(0)
@@ -252,7 +252,8 @@ class HashGridEncoding(nn.Module):
     Attributes: ``output_dim`` (``L * F``), ``resolutions``, ``offsets`` (first table row of each
     level), ``hashmap_size`` (``T``), ``n_dense_levels`` (coarse levels indexed directly),
     ``n_active_levels`` (levels that contribute, see :meth:`set_active_levels`) and ``table``
-    (``[total_entries, F]``, every level).
+    (``[F, total_entries]``, every level, feature-major; checkpoints holding the entry-major
+    ``[total_entries, F]`` table load as well).
     """
 
     def __init__(
@@ -286,13 +287,23 @@ class HashGridEncoding(nn.Module):
         self.n_active_levels = n_levels
         sizes = level_table_sizes(self.resolutions, self.hashmap_size)
         self.offsets = level_offsets(sizes)
-        self.table = nn.Parameter(torch.empty(sum(sizes), n_features_per_level))
-        nn.init.uniform_(self.table, -init_scale, init_scale)
+        # Drawn entry by entry, then stored feature-major: the same values as an entry-major table.
+        entries = torch.empty(sum(sizes), n_features_per_level)
+        nn.init.uniform_(entries, -init_scale, init_scale)
+        self.table = nn.Parameter(entries.t().contiguous())
         # Derived from the arguments, so kept out of the state dict; buffers follow .to(device).
         self.register_buffer("_resolutions", torch.tensor(self.resolutions), persistent=False)
         self.register_buffer("_offsets", torch.tensor(self.offsets), persistent=False)
         multipliers = torch.tensor(index_multipliers(self.resolutions, self.hashmap_size))
         self.register_buffer("_multipliers", multipliers, persistent=False)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        # An entry-major [total_entries, F] table (the earlier layout) is transposed on load.
+        key = prefix + "table"
+        stored = state_dict.get(key)
+        if stored is not None and stored.shape != self.table.shape and stored.shape == self.table.shape[::-1]:
+            state_dict[key] = stored.t().contiguous()
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)
 
     def levels(self) -> GridLevels:
         """The per-level constants, on the module's device."""
@@ -342,7 +353,7 @@ def encode_with_pullback(x01: torch.Tensor, table: torch.Tensor, levels: GridLev
     indices, frac = _corners(x01, levels)
     corners = _gather(table, indices)  # [F, L, 8, N]
     encoded = (corners * corner_weights(frac)).sum(2)  # [F, L, N]
-    n, n_levels, n_features = x01.shape[0], indices.shape[0], table.shape[1]
+    n, n_levels, n_features = x01.shape[0], indices.shape[0], table.shape[0]
     scale = levels.resolutions.to(frac.dtype)[:, None, None]
 
     def pullback(grad_encoded: torch.Tensor) -> torch.Tensor:
