@@ -226,3 +226,13 @@ def test_an_entry_major_checkpoint_loads_transposed():
     assert torch.equal(loaded(x), saved(x))
     with pytest.raises(RuntimeError):
         loaded.load_state_dict({"table": torch.zeros(3, 5)})
+
+
+def test_cells_and_fractions_are_contiguous_along_the_points():
+    """The index and weight tensors inherit this layout; a strided one (from ``x01.t()``) made every
+    elementwise kernel of the encoding run unvectorized."""
+    encoding = HashGridEncoding(**SMALL)
+    cell, frac = hash_grid.cell_corners(torch.rand(50, 3), encoding._resolutions)
+    assert cell.is_contiguous() and frac.is_contiguous()
+    indices, _ = hash_grid._corners(torch.rand(50, 3), encoding.levels())
+    assert indices.is_contiguous()

@@ -91,8 +91,10 @@ def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> Tuple[torch.Te
     """The cell holding each point ``x01 [n_points, 3]`` (in ``[0, 1]``) on each level (``resolutions
     [n_levels]`` int64): ``cell [n_levels, 3, n_points]`` int64 lower corner in ``[0, N_l - 1]`` (a point
     at 1 falls in the last cell with fraction 1) and ``frac [n_levels, 3, n_points]`` in ``[0, 1]``,
-    differentiable w.r.t. ``x01``."""
-    pos = x01.t()[None] * resolutions.to(x01.dtype)[:, None, None]
+    differentiable w.r.t. ``x01``; both contiguous."""
+    # Contiguous along the points: every index and weight tensor derived from these inherits the layout,
+    # and elementwise kernels vectorize only along a contiguous innermost axis.
+    pos = x01.t().contiguous()[None] * resolutions.to(x01.dtype)[:, None, None]
     upper = (resolutions - 1)[:, None, None]
     # Clamping the integers (not the floats) also keeps NaN inputs from producing stray indices.
     cell = torch.minimum(pos.detach().floor().long().clamp_min(0), upper)
