@@ -24,6 +24,7 @@ from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.pipelines.base import Pipeline, PipelineConfig
 from va_plugin.utils.device import pick_device
+from va_plugin.utils.memory import keep_freed_memory
 from va_plugin.utils.stages import stage, timed
 
 CHECKPOINT_DIR = "checkpoints"
@@ -197,6 +198,8 @@ class Trainer:
         if config.num_threads > 0:
             torch.set_num_threads(config.num_threads)
         self.device = pick_device(config.device)
+        if self.device.type == "cpu":
+            keep_freed_memory()  # no page faults for each step's temporaries; the same values
         seed_everything(config.seed)
         self.run_dir = Path(config.output_dir)
         self.horizon = schedule_horizon(config)

@@ -1,10 +1,13 @@
 """Up-front memory estimates for sizes the user picks (a marching-cubes grid, a render scale, a texture
-size): an impossible request is refused with the largest value that fits."""
+size): an impossible request is refused with the largest value that fits. And :func:`keep_freed_memory`,
+the allocator setting that training on CPU runs under."""
 
 from __future__ import annotations
 
+import ctypes
 import math
 import os
+import sys
 
 from va_plugin.errors import ConfigError
 
@@ -17,6 +20,29 @@ BAKE_BYTES_PER_TEXEL_VIEW = 40
 """Texture baking: bytes per texel, and per texel and view."""
 USABLE_SHARE = 0.8
 """Share of the available memory a request may plan to use (the rest is for the process around it)."""
+HEAP_BLOCK_LIMIT = 256 << 20
+"""Blocks up to this size come from malloc's heap under :func:`keep_freed_memory` (glibc: M_MMAP_THRESHOLD)."""
+HEAP_KEEP_LIMIT = 1 << 30
+"""Free memory at the heap's top that malloc keeps before returning it to the system (M_TRIM_THRESHOLD)."""
+_MALLOPT_TRIM_THRESHOLD, _MALLOPT_MMAP_THRESHOLD = -1, -3
+
+
+def keep_freed_memory() -> bool:
+    """Have glibc's malloc keep the memory that a training step frees for the next step's tensors.
+
+    Left alone, malloc gives each tensor of a few MB fresh pages from the system and returns them when the
+    tensor is freed, so every step pays page faults for the same temporaries again. Setting the mmap and
+    trim thresholds high (:data:`HEAP_BLOCK_LIMIT`, :data:`HEAP_KEEP_LIMIT`) keeps them in the process;
+    the peak memory is the same. Process-wide and only for glibc on Linux; returns whether it was applied
+    (False elsewhere, where nothing changes)."""
+    if not sys.platform.startswith("linux"):
+        return False
+    try:
+        libc = ctypes.CDLL("libc.so.6")
+        return bool(libc.mallopt(_MALLOPT_MMAP_THRESHOLD, HEAP_BLOCK_LIMIT)) and \
+            bool(libc.mallopt(_MALLOPT_TRIM_THRESHOLD, HEAP_KEEP_LIMIT))
+    except (OSError, AttributeError):  # not glibc (musl has no mallopt)
+        return False
 
 
 def available_bytes() -> int:
