@@ -207,7 +207,6 @@ def test_active_level_mask_zeroes_the_finest_levels():
         encoding.set_active_levels(9)
 
 
-
 def test_the_table_is_drawn_entry_by_entry_and_stored_feature_major():
     torch.manual_seed(3)
     encoding = HashGridEncoding(**SMALL, init_scale=0.5)
