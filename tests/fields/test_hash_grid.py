@@ -235,3 +235,31 @@ def test_cells_and_fractions_are_contiguous_along_the_points():
     assert cell.is_contiguous() and frac.is_contiguous()
     indices, _ = hash_grid._corners(torch.rand(50, 3), encoding.levels())
     assert indices.is_contiguous()
+
+
+@pytest.fixture
+def two_threads():
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    yield
+    torch.set_num_threads(before)
+
+
+def test_the_threaded_lookup_gives_the_same_bits_as_index_select(two_threads):
+    """With several CPU threads the corners are looked up with ``torch.gather``: the same values and table
+    gradients as ``index_select``, bit for bit."""
+    table = torch.randn(2, 5000, requires_grad=True)
+    indices = torch.randint(0, 5000, (3, 8, 700))
+    weights = torch.randn(2, 3, 8, 700)
+    threaded = hash_grid._gather(table, indices)
+    plain = table.index_select(1, indices.reshape(-1)).view(2, *indices.shape)
+    assert torch.equal(threaded, plain)
+    grads = [torch.autograd.grad((rows * weights).sum(), table)[0] for rows in (threaded, plain)]
+    assert torch.equal(grads[0], grads[1])
+
+
+def test_the_threaded_lookup_passes_gradcheck_and_gradgradcheck(two_threads):
+    encoding = _tiny_double_encoding()
+    x = (torch.rand(4, 3, dtype=torch.float64) * 1.8 - 0.9).requires_grad_()
+    assert torch.autograd.gradcheck(lambda points, table: encoding(points), (x, encoding.table))
+    assert torch.autograd.gradgradcheck(lambda points, table: encoding(points), (x, encoding.table))
