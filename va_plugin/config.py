@@ -123,13 +123,13 @@ _POSITIVE = frozenset({
     "rays_per_batch", "resolution", "scene_radius", "sdf_width", "skip_margin",
     "snapshot_every", "softplus_beta", "update_every"})
 _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
-    "color_layers", "consistent_colour_cast", "diagnostics_scale", "early_rays_per_batch",
+    "color_layers", "consistent_colour_cast", "diagnostics_scale",
     "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",
     "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "mesh_smoothing", "min_sample_weight",
     "n_importance", "num_threads", "schedule_steps", "sdf_layers", "shared_colour_weight", "shared_lr_scale",
     "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels", "threshold", "up_sample_steps",
     "warmup_steps", "weight_decay", "min_foreground_opacity", "final_check_after"})
-_UNIT_INTERVAL = frozenset({"decay", "early_fraction", "early_stop_transmittance", "train_until"})
+_UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "train_until"})
 
 
 def check_range(name: str, value: Any, path: str) -> None:

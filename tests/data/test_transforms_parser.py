@@ -171,19 +171,3 @@ def test_gso_cream_is_the_dev_object_the_frame_cuts_off():
         shares = border_foreground(alphas)
         assert (min(shares) > 0.1) if cut else (max(shares) == 0.0), (name, shares)
 
-
-
-def test_early_ray_batch_until_its_share_of_the_schedule(tmp_path):
-    root = write_scene(tmp_path / "s", n=3, size=(16, 16))
-    config = DataManagerConfig(dataparser=TransformsDataParserConfig(data=root, scene_radius=4.0), rays_per_batch=64,
-                               early_rays_per_batch=16, early_fraction=0.25)
-    dm = DataManager(config, horizon=100)
-    assert [dm.rays_at(s) for s in (0, 24, 25, 99, 500)] == [16, 16, 64, 64, 64]
-    assert dm.next_train(3)[0].origins.shape == (16, 3) and dm.next_train(25)[0].origins.shape == (64, 3)
-    # without a horizon, or with the early batch off, every step draws rays_per_batch (the same draws as before)
-    assert DataManager(config).rays_at(0) == 64
-    plain = DataManagerConfig(dataparser=config.dataparser, rays_per_batch=64)
-    a, b = DataManager(plain, horizon=100).next_train(0)[1], DataManager(plain).next_train(0)[1]
-    assert torch.equal(a["pixel"], b["pixel"])
-    with pytest.raises(DataError, match="early_rays_per_batch"):
-        DataManager(DataManagerConfig(dataparser=config.dataparser, early_rays_per_batch=-1))

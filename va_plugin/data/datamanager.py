@@ -28,11 +28,6 @@ class DataManagerConfig(InstantiateConfig):
     """How to read the scene."""
     rays_per_batch: int = 512
     """Training rays per step."""
-    early_rays_per_batch: int = 0
-    """Training rays per step in the first ``early_fraction`` of the schedule, while the shape is still
-    coarse (0: ``rays_per_batch`` from the first step). A step's cost is about proportional to its rays."""
-    early_fraction: float = 0.5
-    """Share of the schedule trained with ``early_rays_per_batch``."""
     foreground_fraction: float = 0.5
     """Share of each batch drawn from foreground pixels (the rest uniformly from all pixels)."""
     seed: int = 42
@@ -42,18 +37,12 @@ class DataManagerConfig(InstantiateConfig):
 class DataManager:
     """Holds the images on the device and draws random training rays with their view indices."""
 
-    def __init__(self, config: DataManagerConfig, device: torch.device = torch.device("cpu"),
-                 horizon: int = 0) -> None:
+    def __init__(self, config: DataManagerConfig, device: torch.device = torch.device("cpu")) -> None:
         if not 0.0 <= config.foreground_fraction <= 1.0:
             raise DataError(f"foreground_fraction must be in [0, 1], got {config.foreground_fraction}")
         if config.rays_per_batch < 1:
             raise DataError(f"rays_per_batch must be positive, got {config.rays_per_batch}")
-        if config.early_rays_per_batch < 0 or not 0.0 <= config.early_fraction <= 1.0:
-            raise DataError(f"early_rays_per_batch must be >= 0 and early_fraction in [0, 1], got "
-                            f"{config.early_rays_per_batch} and {config.early_fraction}")
         self.config = config
-        # the step at which the schedules end (0: unknown; then only rays_per_batch is used)
-        self.horizon = int(horizon)
         self.device = device
         parser = config.dataparser.setup()
         self.train = parser.get_outputs("train")
@@ -92,15 +81,9 @@ class DataManager:
             raise DataError("the foreground masks are empty in every view: nothing to reconstruct")
         return flat
 
-    def rays_at(self, step: int) -> int:
-        """Training rays of the batch of 0-based ``step``."""
-        cfg = self.config
-        if cfg.early_rays_per_batch > 0 and step < round(cfg.early_fraction * self.horizon):
-            return cfg.early_rays_per_batch
-        return cfg.rays_per_batch
-
-    def _sample_flat_indices(self, n: int) -> torch.Tensor:
-        """Flat pixel indices ``[n]``: ``foreground_fraction`` of them on the mask, the rest anywhere."""
+    def _sample_flat_indices(self) -> torch.Tensor:
+        """Flat pixel indices ``[rays_per_batch]``: ``foreground_fraction`` of them on the mask, the rest anywhere."""
+        n = self.config.rays_per_batch
         total = self.images.shape[0] * self._height * self._width
         n_fg = int(round(n * self.config.foreground_fraction)) if self._foreground is not None else 0
         uniform = torch.randint(0, total, (n - n_fg,), generator=self.generator)
@@ -112,7 +95,7 @@ class DataManager:
     def next_train(self, step: int) -> Tuple[RayBundle, Dict[str, torch.Tensor]]:
         """A random batch of training rays and their targets (``rgb [n, 3]``, ``mask [n, 1]``, and
         ``normal [n, 3]`` when the input has normal maps), with ``pixel [n, 3]`` (view, row, column)."""
-        flat = self._sample_flat_indices(self.rays_at(step)).to(self.device)
+        flat = self._sample_flat_indices().to(self.device)
         pixels = self._height * self._width
         views, within = flat // pixels, flat % pixels
         rows, cols = within // self._width, within % self._width

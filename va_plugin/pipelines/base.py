@@ -32,7 +32,7 @@ class Pipeline(nn.Module):
         super().__init__()
         self.config = config
         self.device = device
-        self.datamanager = config.datamanager.setup(device=device, horizon=max_steps)
+        self.datamanager = config.datamanager.setup(device=device)
         scene = SceneInfo(num_train_views=self.datamanager.num_train_views,
                           scene_radius=self.datamanager.scene_radius,
                           background=self.datamanager.background, max_steps=max_steps,
