@@ -171,28 +171,3 @@ def test_gso_cream_is_the_dev_object_the_frame_cuts_off():
         shares = border_foreground(alphas)
         assert (min(shares) > 0.1) if cut else (max(shares) == 0.0), (name, shares)
 
-
-
-def test_without_replacement_draws_every_pixel_once_per_pass_and_resumes(tmp_path):
-    root = write_scene(tmp_path / "s", n=3, size=(16, 16))
-    parser = TransformsDataParserConfig(data=root, scene_radius=4.0)
-    config = DataManagerConfig(dataparser=parser, rays_per_batch=256, foreground_fraction=0.0, without_replacement=True)
-    dm = DataManager(config)
-    pixels = torch.cat([dm.next_train(i)[1]["pixel"] for i in range(3)])  # 3 views x 16 x 16 = 768 = 3 batches
-    assert len({tuple(p) for p in pixels.tolist()}) == 768
-    # the foreground share: each foreground pixel once before any repeats
-    config = DataManagerConfig(dataparser=parser, rays_per_batch=64, foreground_fraction=0.5, without_replacement=True)
-    dm = DataManager(config)
-    n_fg = dm._foreground.numel()
-    first = torch.cat([dm._sample_flat_indices()[:32] for _ in range(n_fg // 32)])
-    assert len(set(first.tolist())) == len(first) and bool((dm.masks.reshape(-1)[first] > 0.5).all())
-    # a checkpoint restores the order and the position: the next batches are the same
-    for step in range(5):
-        dm.next_train(step)
-    state = dm.state_dict()
-    ahead = [dm.next_train(5 + i)[1]["pixel"] for i in range(30)]
-    again = DataManager(config)
-    again.load_state_dict(state)
-    assert all(torch.equal(a, again.next_train(5 + i)[1]["pixel"]) for i, a in enumerate(ahead))
-    with pytest.raises(DataError, match="without replacement"):
-        again.load_state_dict(DataManager(DataManagerConfig(dataparser=parser)).state_dict())

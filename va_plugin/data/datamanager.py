@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, Iterator, Optional, Tuple, Type
+from typing import Dict, Iterator, Optional, Tuple, Type
 
 import torch
 
@@ -32,10 +32,6 @@ class DataManagerConfig(InstantiateConfig):
     """Share of each batch drawn from foreground pixels (the rest uniformly from all pixels)."""
     seed: int = 42
     """Seed of the ray sampler's own generator (independent of the model's)."""
-    without_replacement: bool = False
-    """Draw pixels without replacement: every training pixel (and every foreground pixel, for the
-    foreground share) is drawn once, in a fresh random order per pass, before any is drawn again. Drawn with
-    replacement, a budget of about one ray per pixel leaves a third of the pixels unseen."""
 
 
 class DataManager:
@@ -61,10 +57,6 @@ class DataManager:
         self.generator = torch.Generator(device="cpu").manual_seed(config.seed)
         self._height, self._width = self.images.shape[1:3]
         self._foreground = self._foreground_pixels()
-        # without replacement: one shuffled pass per pool (foreground, all pixels), consumed in order
-        self._passes = {name: _Pass(size, self.generator) for name, size in (
-            ("foreground", 0 if self._foreground is None else self._foreground.numel()),
-            ("all", self.images.shape[0] * self._height * self._width))} if config.without_replacement else None
         check_object_in_bound(self.train)
         warn_object_cut_by_frame(self.train)
 
@@ -94,11 +86,6 @@ class DataManager:
         n = self.config.rays_per_batch
         total = self.images.shape[0] * self._height * self._width
         n_fg = int(round(n * self.config.foreground_fraction)) if self._foreground is not None else 0
-        if self._passes is not None:
-            uniform = self._passes["all"].take(n - n_fg)
-            if n_fg == 0:
-                return uniform
-            return torch.cat([self._foreground[self._passes["foreground"].take(n_fg)], uniform])
         uniform = torch.randint(0, total, (n - n_fg,), generator=self.generator)
         if n_fg == 0:
             return uniform
@@ -144,54 +131,8 @@ class DataManager:
             return None
         return write_mask_picture(Path(run_dir) / MASK_PICTURE, self.train.images.numpy(), self.train.masks.numpy())
 
-    def state_dict(self) -> Dict[str, Any]:
-        state: Dict[str, Any] = {"generator": self.generator.get_state()}
-        if self._passes is not None:
-            state["passes"] = {name: one.state_dict() for name, one in self._passes.items()}
-        return state
+    def state_dict(self) -> Dict[str, torch.Tensor]:
+        return {"generator": self.generator.get_state()}
 
-    def load_state_dict(self, state: Dict[str, Any]) -> None:
-        if self._passes is not None:
-            if "passes" not in state:
-                raise DataError("this run draws pixels without replacement, but the checkpoint was written "
-                                "by a run that drew them with replacement")
-            for name, one in self._passes.items():
-                one.load_state_dict(state["passes"][name])
+    def load_state_dict(self, state: Dict[str, torch.Tensor]) -> None:
         self.generator.set_state(state["generator"])
-
-
-class _Pass:
-    """Indices ``0 .. size - 1`` in a random order, handed out in order; a new order when used up. Its state
-    is the generator's state before the current order was drawn and the position in it, so a checkpoint
-    holds no permutation."""
-
-    def __init__(self, size: int, generator: torch.Generator) -> None:
-        self.size, self.generator = size, generator
-        self.order: Optional[torch.Tensor] = None
-        self.position, self.drawn_from = 0, None
-
-    def _shuffle(self) -> None:
-        self.drawn_from = self.generator.get_state()
-        self.order, self.position = torch.randperm(self.size, generator=self.generator), 0
-
-    def take(self, n: int) -> torch.Tensor:
-        parts = []
-        while n > 0:
-            if self.order is None or self.position == self.size:
-                self._shuffle()
-            part = self.order[self.position:self.position + n]
-            self.position += len(part)
-            n -= len(part)
-            parts.append(part)
-        return torch.cat(parts) if len(parts) != 1 else parts[0]
-
-    def state_dict(self) -> Dict[str, Any]:
-        return {"drawn_from": self.drawn_from, "position": self.position}
-
-    def load_state_dict(self, state: Dict[str, Any]) -> None:
-        self.order, self.position, self.drawn_from = None, int(state["position"]), state["drawn_from"]
-        if self.drawn_from is not None:
-            now = self.generator.get_state()
-            self.generator.set_state(self.drawn_from)
-            self.order = torch.randperm(self.size, generator=self.generator)
-            self.generator.set_state(now)
