@@ -15,6 +15,8 @@ setup(
     description="View-adaptive renderer for view-consistent 2D-to-3D generation (NeuS / InstantNGP plugin)",
     python_requires=">=3.11",
     packages=find_packages(include=["va_plugin", "va_plugin.*", "method_configs", "method_configs.*"]),
+    # the hash grid's fused CPU kernels are compiled from source on first use
+    package_data={"va_plugin.fields.encodings": ["*.cpp"]},
     install_requires=[
         # torch is pinned by the setup script to the CPU build on this machine; a plain range here
         # would let pip pull a multi-GB CUDA build when torch is missing.
@@ -26,6 +28,7 @@ setup(
         "scikit-image",  # marching cubes
         "tqdm",          # progress bars
         "xatlas",        # UV atlases of extracted meshes for baked textures (va-export mesh --texture)
+        "ninja",         # builds the hash grid's fused CPU kernels (torch.utils.cpp_extension needs it)
     ],
     extras_require={
         "test": ["pytest", "hypothesis"],

@@ -1,4 +1,4 @@
-"""Multiresolution hash encoding (Müller et al. 2022, "Instant Neural Graphics Primitives"), pure PyTorch.
+"""Multiresolution hash encoding (Müller et al. 2022, "Instant Neural Graphics Primitives").
 
 A point is looked up in ``L`` grids of growing resolution: coarse levels whose vertices fit in the
 table are indexed directly, finer ones hash their vertices into ``T`` entries. Each level trilinearly
@@ -13,6 +13,10 @@ allocator recycles the temporaries.
 Gradients: a custom autograd function gives first-order gradients from an analytic backward that
 recomputes the corners; a second-order gradient (``create_graph=True``) falls back to plain autograd.
 Input gradients are zero outside ``[-bound, bound]`` (points are clamped).
+
+On CPU, float32 lookups whose points need no gradient (training samples, probes, rendering) run on the
+fused kernels of :mod:`hash_kernel` when they can be built; this module's PyTorch code is the path
+everywhere else and the reference the kernels are tested against.
 """
 
 from __future__ import annotations
@@ -25,6 +29,7 @@ import torch.nn.functional as F
 from torch import nn
 
 from va_plugin.errors import ConfigError
+from va_plugin.fields.encodings import hash_kernel
 
 # Per-axis multipliers of the spatial hash (Teschner et al. 2003, as used by InstantNGP).
 HASH_PRIMES = (1, 2654435761, 805459861)
@@ -349,7 +354,11 @@ class HashGridEncoding(nn.Module):
         points = normalise_points(x.reshape(-1, 3).to(self.table.dtype), self.bound)
         if n_active == 0:
             return points.new_zeros(*x.shape[:-1], self.output_dim)
-        encoded = _HashGridFunction.apply(points, self.table, self.levels().first(n_active))
+        levels = self.levels().first(n_active)
+        if hash_kernel.usable(points, self.table, self.hashmap_size):
+            encoded = hash_kernel.encode(points, self.table, levels)
+        else:
+            encoded = _HashGridFunction.apply(points, self.table, levels)
         encoded = F.pad(encoded, (0, self.output_dim - encoded.shape[1]))
         return encoded.view(*x.shape[:-1], self.output_dim)
 
@@ -364,7 +373,10 @@ class HashGridEncoding(nn.Module):
         if n_active == 0 or points.shape[0] == 0:
             return points.new_zeros(points.shape[0], self.output_dim), lambda grad: points.new_zeros(points.shape)
         inside = ((flat > -self.bound) & (flat < self.bound)).to(flat.dtype) / (2.0 * self.bound)
-        encoded, pull = encode_with_pullback(points, self.table, self.levels().first(n_active))
+        levels = self.levels().first(n_active)
+        lookup = (hash_kernel.encode_with_pullback if hash_kernel.usable(points, self.table, self.hashmap_size)
+                  else encode_with_pullback)
+        encoded, pull = lookup(points, self.table, levels)
 
         def pullback(grad_encoded: torch.Tensor) -> torch.Tensor:
             return pull(grad_encoded[:, :width]) * inside

@@ -1,0 +1,172 @@
+"""Fused CPU kernels of the hash encoding (``hash_kernel.cpp``), built on first use.
+
+The PyTorch path of :mod:`hash_grid` runs a few dozen tensor operations per lookup; these kernels do a
+lookup, its pull-back to the points and their gradients in one pass each, with the work split across
+CPU threads. They serve float32 points on CPU that need no gradient themselves (a training step's
+samples, probes, rendering and mesh extraction); everything else (other dtypes, GPUs, gradients w.r.t.
+the points, double backward) takes the PyTorch path, which is also the reference the tests hold these
+kernels to.
+
+The extension is compiled once per machine with ``torch.utils.cpp_extension`` (a C++ compiler and
+ninja are needed; about a minute) and cached in torch's extension folder. If it cannot be built, a
+warning says why and the PyTorch path is used. ``VA_PLUGIN_HASH_KERNEL=0`` turns the kernels off.
+"""
+
+from __future__ import annotations
+
+import os
+import sys
+import threading
+import warnings
+from pathlib import Path
+from typing import List, Optional, Tuple
+
+import torch
+from torch.autograd.function import once_differentiable
+
+SOURCE = Path(__file__).with_name("hash_kernel.cpp")
+NAME = "va_hash_grid"
+# Built for the machine it runs on (vector instructions across points); no fused multiply-adds, so the
+# encoding keeps the PyTorch path's rounding; OpenMP for the threads torch uses.
+CFLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fopenmp")
+ENV_SWITCH = "VA_PLUGIN_HASH_KERNEL"
+
+_lock = threading.Lock()
+_state: dict = {}
+
+
+def kernels_enabled() -> bool:
+    """Whether the environment allows the kernels (``VA_PLUGIN_HASH_KERNEL`` unset, or not 0/false/no/off)."""
+    return os.environ.get(ENV_SWITCH, "1").strip().lower() not in ("0", "false", "no", "off")
+
+
+def load_kernels(verbose: bool = False):
+    """The compiled operators (``torch.ops.va_hash_grid``), building them on the first call; ``None``
+    when they are switched off or cannot be built (a warning says why, once)."""
+    if not kernels_enabled():
+        return None
+    with _lock:
+        if "ops" not in _state:
+            _state["ops"] = _build(verbose)
+    return _state["ops"]
+
+
+def _build(verbose: bool):
+    try:
+        from torch.utils import cpp_extension
+
+        if not _built_before(cpp_extension.get_default_build_root()):
+            print("compiling the hash grid's CPU kernels (once per machine, about a minute)", file=sys.stderr, flush=True)
+        cpp_extension.load(name=NAME, sources=[str(SOURCE)], extra_cflags=list(CFLAGS), extra_ldflags=["-fopenmp"],
+                           is_python_module=False, verbose=verbose)
+        return torch.ops.va_hash_grid
+    except Exception as error:  # a missing compiler or ninja, a read-only cache folder, ...
+        first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
+        warnings.warn(f"the fused CPU hash-grid kernels could not be built ({first_line}); using the slower "
+                      f"PyTorch path. Set {ENV_SWITCH}=0 to skip the attempt.", RuntimeWarning, stacklevel=3)
+        return None
+
+
+# The kernels index a level's table with 32-bit integers.
+MAX_HASHMAP_SIZE = 2**31
+
+
+def _built_before(root: str) -> bool:
+    """Whether torch's extension folder holds a build newer than the source (a heuristic for the message)."""
+    try:
+        built = [p.stat().st_mtime for p in Path(root).glob(f"*/{NAME}*/{NAME}*.so")]
+        built += [p.stat().st_mtime for p in Path(root).glob(f"{NAME}*/{NAME}*.so")]
+        return bool(built) and max(built) >= SOURCE.stat().st_mtime
+    except OSError:
+        return False
+
+
+def usable(x01: torch.Tensor, table: torch.Tensor, hashmap_size: int) -> bool:
+    """Whether a lookup of points ``x01`` in ``table`` (levels of at most ``hashmap_size`` entries) can run
+    on the kernels: float32 on CPU, no gradient w.r.t. the points, and the kernels built."""
+    return (x01.device.type == "cpu" and table.device.type == "cpu" and x01.dtype == torch.float32
+            and table.dtype == torch.float32 and not x01.requires_grad and hashmap_size <= MAX_HASHMAP_SIZE
+            and load_kernels() is not None)
+
+
+def _level_args(levels) -> Tuple:
+    return (levels.resolutions, levels.multipliers.contiguous(), levels.offsets, int(levels.n_dense),
+            int(levels.hashmap_size))
+
+
+class _Pending:
+    """Pull-back gradients ``(g, gd)`` waiting for their encoding's backward, which folds them into the
+    same scatter into the table (one pass over the table instead of one per function)."""
+
+    def __init__(self) -> None:
+        self.pulls: List[Tuple[torch.Tensor, torch.Tensor]] = []
+
+
+class _Encode(torch.autograd.Function):
+    """The encoding ``[n, L * F]`` of points ``x01 [n, 3]``; the table's gradient from a single scatter
+    that also takes the pending pull-back gradients."""
+
+    @staticmethod
+    def forward(ctx, x01, table, levels, pending):
+        ctx.levels, ctx.pending = levels, pending
+        ctx.save_for_backward(x01, table)
+        return load_kernels().encode(x01.contiguous(), table, *_level_args(levels))
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, grad):
+        x01, table = ctx.saved_tensors
+        pulls = ctx.pending.pulls if ctx.pending is not None else []
+        if not ctx.needs_input_grad[1]:
+            pulls.clear()
+            return None, None, None, None
+        ops, args = load_kernels(), _level_args(ctx.levels)
+        g, gd = pulls.pop() if pulls else (None, None)
+        grad_table = ops.table_grad(x01, table, grad.contiguous(), g, gd, *args)
+        while pulls:
+            g, gd = pulls.pop()
+            grad_table += ops.table_grad(x01, table, None, g, gd, *args)
+        return None, grad_table, None, None
+
+
+class _Pullback(torch.autograd.Function):
+    """``d/d x01`` ``[n, 3]`` of the derivative ``g [n, L * F]`` w.r.t. an encoding; differentiable in ``g``
+    and (through the encoding's backward, which takes ``encoded`` as a dependency) in the table."""
+
+    @staticmethod
+    def forward(ctx, x01, table, g, encoded, levels, pending):
+        ctx.levels, ctx.pending = levels, pending
+        ctx.save_for_backward(x01, table, g)
+        ctx.encoded_shape = encoded.shape
+        return load_kernels().pullback(x01, table, g.contiguous(), *_level_args(levels))
+
+    @staticmethod
+    @once_differentiable
+    def backward(ctx, gd):
+        x01, table, g = ctx.saved_tensors
+        gd = gd.contiguous()
+        grad_g = None
+        if ctx.needs_input_grad[2]:
+            grad_g = load_kernels().pullback_grad_g(x01, table, gd, *_level_args(ctx.levels))
+        grad_encoded = None
+        if ctx.needs_input_grad[1]:
+            ctx.pending.pulls.append((g.contiguous(), gd))
+            # A zero gradient for the encoding makes sure its backward, which does the scatter, runs.
+            grad_encoded = gd.new_zeros(ctx.encoded_shape)
+        return None, None, grad_g, grad_encoded, None, None
+
+
+def encode(x01: torch.Tensor, table: torch.Tensor, levels) -> torch.Tensor:
+    """The encoding ``[n, L * F]``, differentiable in ``table``."""
+    return _Encode.apply(x01, table, levels, None)
+
+
+def encode_with_pullback(x01: torch.Tensor, table: torch.Tensor, levels):
+    """As :func:`hash_grid.encode_with_pullback`, on the kernels."""
+    pending = _Pending()
+    encoded = _Encode.apply(x01, table, levels, pending)
+
+    def pullback(grad_encoded: torch.Tensor) -> torch.Tensor:
+        return _Pullback.apply(x01, table, grad_encoded, encoded, levels, pending)
+
+    return encoded, pullback
