@@ -48,6 +48,23 @@ def test_resume_continues_bitwise(tiny_scene, tmp_path):
     assert all(torch.equal(a[k], b[k]) for k in a), "resumed run differs from the uninterrupted one"
 
 
+def test_a_run_resumed_at_its_last_step_renders_as_the_run_that_trained_it(tiny_scene, tmp_path):
+    """Reopening a finished run (``va-demo`` or ``va-train`` again on its folder) runs no step, so the model's
+    step schedules must come from the checkpoint, not from step 0."""
+    config = dict(steps=8, checkpoint_every=8, **{"pipeline.model.field.coarse_to_fine_fraction": 0.5})
+    trained = tiny_config("neus", tiny_scene, tmp_path / "run", **config).setup()
+    trained.train()
+    reopened = tiny_config("neus", tiny_scene, tmp_path / "run", **config).setup()
+    assert reopened.resume() and reopened.step == 8
+    assert reopened.model.step == trained.model.step == 7  # the last step run
+    assert reopened.model.field.encoding.n_active_levels == trained.model.field.encoding.n_active_levels
+    for trainer in (trained, reopened):
+        trainer.model.eval()
+    with torch.no_grad():
+        renders = [trainer.pipeline.evaluate_views(1)[1][0]["rgb"] for trainer in (trained, reopened)]
+    assert torch.equal(renders[0], renders[1])
+
+
 def test_a_checkpoint_with_the_entry_major_hash_table_resumes_bitwise(tiny_scene, tmp_path):
     """A checkpoint written when the hash table (and its Adam moments) was stored ``[entries, F]``
     resumes exactly as one in today's feature-major layout."""

@@ -280,6 +280,9 @@ class Trainer:
             first = str(exc).strip().splitlines()[0]
             raise CheckpointError(f"checkpoint {state.get('path')} does not fit this config ({first})") from None
         self.step = int(state["step"])
+        # the model's step schedules (e.g. the open grid levels) as they stood when the checkpoint was
+        # written, at the last step run: a finished run reopened without a step renders as it did
+        self.model.restore_step(max(self.step - 1, 0))
         self.train_seconds = float(state.get("train_seconds", 0.0))
         self.lr_multipliers.update(state.get("lr_multipliers", {}))
         self.guard.load_state_dict(state.get("health", {}))

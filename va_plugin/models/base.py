@@ -60,6 +60,11 @@ class Model(nn.Module):
         if field is not None:
             field.update_step(step, self.scene.max_steps)
 
+    def restore_step(self, step: int) -> None:
+        """Set the step schedules (``self.step``, the field's) as :meth:`update_step` sets them for step
+        ``step``, without touching any parameter: for a model loaded from a checkpoint."""
+        Model.update_step(self, step)
+
     def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
         raise NotImplementedError
 
