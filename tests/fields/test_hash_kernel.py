@@ -139,6 +139,7 @@ def test_a_failed_build_warns_once_and_falls_back(monkeypatch):
     def no_compiler(*args, **kwargs):
         raise RuntimeError("Error building extension 'va_hash_grid': c++: not found")
 
+    monkeypatch.delenv(hash_kernel.ENV_SWITCH, raising=False)
     monkeypatch.setattr(hash_kernel, "_state", {})
     monkeypatch.setattr(cpp_extension, "load", no_compiler)
     with pytest.warns(RuntimeWarning, match="could not be built .*c\\+\\+: not found"):
