@@ -6,7 +6,8 @@ from pathlib import Path
 from setuptools import find_packages, setup
 
 # the built-in methods are listed once, in method_configs/__init__.py (a file without imports)
-BUILTIN_METHODS = runpy.run_path(str(Path(__file__).resolve().parent / "method_configs" / "__init__.py"))["BUILTIN_METHODS"]
+BUILTIN_METHODS = runpy.run_path(
+    str(Path(__file__).resolve().parent / "method_configs" / "__init__.py"))["BUILTIN_METHODS"]
 METHODS = [f"{name} = {reference}" for name, reference in BUILTIN_METHODS.items()]
 
 setup(
@@ -31,7 +32,7 @@ setup(
         "ninja",         # builds the hash grid's fused CPU kernels (torch.utils.cpp_extension needs it)
     ],
     extras_require={
-        "test": ["pytest", "hypothesis"],
+        "test": ["pytest", "hypothesis", "ruff"],  # ruff: the linter `make test` runs first
         "plots": ["matplotlib"],
         "ray": ["ray"],  # va-batch --engine ray
     },

@@ -19,11 +19,9 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import List, Optional
 
 from va_plugin.cli.common import friendly_errors
-from va_plugin.data.scenes import build_scene, inputs_figure, list_objects
-from va_plugin.data.scenes import gso
+from va_plugin.data.scenes import build_scene, gso, inputs_figure, list_objects
 from va_plugin.data.scenes.inconsistency import KINDS, parse_level
 from va_plugin.errors import ConfigError, DataError
 
@@ -73,7 +71,7 @@ def print_objects(data_root: Path) -> None:
 
 
 @friendly_errors
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     if args.list:
         print_objects(args.data_root)

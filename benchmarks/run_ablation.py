@@ -16,12 +16,22 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any
 
-from va_plugin.bench.cli import Experiment, adaptive_overrides, backbones_from_args, main as bench_main
+from va_plugin.bench.cli import Experiment, adaptive_overrides, backbones_from_args
+from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.presets import BACKBONE_TITLES
-from va_plugin.bench.report import (DELTA_TITLES, delta_cell, fmt_delta, group_rows, markdown_table, metric_delta,
-                                    plot_time_curves, report_sections, write_outputs)
+from va_plugin.bench.report import (
+    DELTA_TITLES,
+    delta_cell,
+    fmt_delta,
+    group_rows,
+    markdown_table,
+    metric_delta,
+    plot_time_curves,
+    report_sections,
+    write_outputs,
+)
 from va_plugin.bench.rows import RowSpec, scene_of
 
 FIELD = "pipeline.model.field."
@@ -45,7 +55,7 @@ PAPER_TABLE4 = [
 """The paper's Table 4 (NeuS, SyncDreamer inputs), in the order of STEPS."""
 
 
-def plan(preset, args, sources: List[str]) -> List[RowSpec]:
+def plan(preset, args, sources: list[str]) -> list[RowSpec]:
     rows = []
     for source in sources:
         scene = scene_of(source, preset, args.seed)
@@ -59,7 +69,7 @@ def plan(preset, args, sources: List[str]) -> List[RowSpec]:
     return rows
 
 
-def step_table(rows: List[Dict[str, Any]]) -> str:
+def step_table(rows: list[dict[str, Any]]) -> str:
     """Each row label against the one before it, paired by scene, with the paper's step beside it (NeuS)."""
     body = []
     for backbone, group in group_rows(rows, lambda r: r["backbone"]).items():
@@ -76,7 +86,7 @@ def step_table(rows: List[Dict[str, Any]]) -> str:
     return markdown_table(["Step (against the row before)", *DELTA_TITLES.values()], body)
 
 
-def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
+def report(rows: list[dict[str, Any]], out: Path, meta: dict[str, Any]) -> list[Path]:
     sections = report_sections("Table 4: cumulative ablation", meta, rows, [
         "## Each step against the row before, paired by scene",
         "The paper's steps are from its Table 4 (NeuS, SyncDreamer inputs, GPU).",

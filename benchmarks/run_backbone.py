@@ -22,12 +22,20 @@ from __future__ import annotations
 import itertools
 import sys
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
-from va_plugin.bench.cli import Experiment, axis_values, comma_list, main as bench_main
+from va_plugin.bench.cli import Experiment, axis_values, comma_list
+from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.presets import BACKBONES
-from va_plugin.bench.report import (fmt, group_rows, markdown_table, plot_time_curves, report_sections,
-                                    summary_table, write_outputs)
+from va_plugin.bench.report import (
+    fmt,
+    group_rows,
+    markdown_table,
+    plot_time_curves,
+    report_sections,
+    summary_table,
+    write_outputs,
+)
 from va_plugin.bench.rows import RowSpec, scene_of
 from va_plugin.data.scenes.inconsistency import parse_kinds
 from va_plugin.errors import ConfigError
@@ -53,7 +61,7 @@ def add_arguments(parser) -> None:
                         help="comma-separated multiples of each variant's default step budget (e.g. 1,2,4)")
 
 
-def parse_variants(text: str) -> List[Tuple[str, str, Tuple[str, ...]]]:
+def parse_variants(text: str) -> list[tuple[str, str, tuple[str, ...]]]:
     """``METHOD[:PRESET][@KEY=VALUE...],...`` -> [(method, preset or "", overrides)], checked against the
     registry; each ``@KEY=VALUE`` is a ``--set`` override of that variant only."""
     variants = []
@@ -74,7 +82,7 @@ def parse_variants(text: str) -> List[Tuple[str, str, Tuple[str, ...]]]:
     return variants
 
 
-def parse_kind_sets(text: Optional[str]) -> List[Optional[Tuple[str, ...]]]:
+def parse_kind_sets(text: str | None) -> list[tuple[str, ...] | None]:
     """``--kinds``: ``None`` (every kind together) or one tuple of kinds per ``;``-separated set."""
     if text is None or not text.strip():
         return [None]
@@ -84,7 +92,7 @@ def parse_kind_sets(text: Optional[str]) -> List[Optional[Tuple[str, ...]]]:
     return sets
 
 
-def plan(preset, args, sources: List[str]) -> List[RowSpec]:
+def plan(preset, args, sources: list[str]) -> list[RowSpec]:
     variants = parse_variants(args.variants)
     budgets = [float(b) for b in comma_list(args.budgets, float)]
     if not budgets or min(budgets) <= 0:
@@ -102,11 +110,11 @@ def plan(preset, args, sources: List[str]) -> List[RowSpec]:
                     "".join(f"@{o}" for o in overrides) + ("" if budget == 1 else f" x{budget:g}")
                 rows.append(RowSpec("backbone", scene, backbone, bool(adaptive), variant=label,
                                     overrides=overrides, method_preset=method_preset or None,
-                                    steps=max(1, int(round(default_steps * budget)))))
+                                    steps=max(1, round(default_steps * budget))))
     return rows
 
 
-def _budget_check(rows: List[Dict[str, Any]]) -> str:
+def _budget_check(rows: list[dict[str, Any]]) -> str:
     """Per variant and level, the change of held-out PSNR and CD from budget x1 to each larger budget,
     paired by object (the issue's test: no lower PSNR than -0.2 dB, no higher CD than +3%)."""
     base = {(r["scene"], r["level"], r["variant"]): r for r in rows if " x" not in r["variant"]}
@@ -128,7 +136,7 @@ def _budget_check(rows: List[Dict[str, Any]]) -> str:
         ["variant", "level", "objects", "PSNR mean", "PSNR worst", "CD mean", "CD worst"], body)
 
 
-def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
+def report(rows: list[dict[str, Any]], out: Path, meta: dict[str, Any]) -> list[Path]:
     body = []
     for level, group in group_rows(rows, lambda r: r["level"]).items():
         scenes = len({r["scene"] for r in group})

@@ -24,12 +24,23 @@ from __future__ import annotations
 import math
 import sys
 from pathlib import Path
-from typing import Any, Dict, List, Optional
+from typing import Any
 
-from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_axis_rows
+from va_plugin.bench.cli import Experiment, axis_values, paired_axis_rows
+from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.presets import BACKBONE_TITLES
-from va_plugin.bench.report import (axis_table, fmt, fmt_mean_sd, group_rows, linear_fit, markdown_table, mean_sd,
-                                    plot_against, report_sections, write_outputs)
+from va_plugin.bench.report import (
+    axis_table,
+    fmt,
+    fmt_mean_sd,
+    group_rows,
+    linear_fit,
+    markdown_table,
+    mean_sd,
+    plot_against,
+    report_sections,
+    write_outputs,
+)
 from va_plugin.bench.rows import RowSpec
 
 
@@ -38,11 +49,11 @@ def add_arguments(parser) -> None:
                         "preset's, 0,1,2,3; smoke: 0,2)")
 
 
-def plan(preset, args, sources: List[str]) -> List[RowSpec]:
+def plan(preset, args, sources: list[str]) -> list[RowSpec]:
     return paired_axis_rows("sweep", preset, args, sources, axis_values(args.levels, preset.levels), "level")
 
 
-def render_rmse(row: Dict[str, Any]) -> float:
+def render_rmse(row: dict[str, Any]) -> float:
     """RMS colour error of the held-out renders, from their PSNR: 10^(-PSNR/20)."""
     psnr = row.get("psnr")
     return 10.0 ** (-float(psnr) / 20.0) if psnr is not None and math.isfinite(psnr) else float("nan")
@@ -51,7 +62,7 @@ def render_rmse(row: Dict[str, Any]) -> float:
 ERRORS = {"cd": ("Chamfer distance", lambda r: r.get("cd")), "render_rmse": ("held-out render RMSE", render_rmse)}
 
 
-def scene_slopes(group: List[Dict[str, Any]], error) -> List[float]:
+def scene_slopes(group: list[dict[str, Any]], error) -> list[float]:
     """Per scene, the least-squares slope of ``error(row)`` against the input error over the levels."""
     slopes = []
     for rows in group_rows(group, lambda r: r["scene"]).values():
@@ -61,7 +72,7 @@ def scene_slopes(group: List[Dict[str, Any]], error) -> List[float]:
     return slopes
 
 
-def verdict(original: List[float], adaptive: List[float]) -> List[str]:
+def verdict(original: list[float], adaptive: list[float]) -> list[str]:
     (mo, _, no), (ma, _, na) = mean_sd(original), mean_sd(adaptive)
     if not no or not na:
         return ["n/a (needs at least two levels per scene)"] * 3
@@ -72,10 +83,10 @@ def verdict(original: List[float], adaptive: List[float]) -> List[str]:
     return [f"yes: slope {fmt(mo, 'cd')}", f"{theorem}: ratio adaptive/original {ma / mo:.2f}", lower]
 
 
-def claims_table(rows: List[Dict[str, Any]]) -> str:
+def claims_table(rows: list[dict[str, Any]]) -> str:
     body = []
     for backbone, group in group_rows(rows, lambda r: r["backbone"]).items():
-        for name, (title, error) in ERRORS.items():
+        for title, error in ERRORS.values():
             original = scene_slopes([r for r in group if not r["adaptive"]], error)
             adaptive = scene_slopes([r for r in group if r["adaptive"]], error)
             body.append([BACKBONE_TITLES.get(backbone, backbone), title, fmt_mean_sd(original, "cd"),
@@ -85,7 +96,7 @@ def claims_table(rows: List[Dict[str, Any]]) -> str:
                            "adaptive slope lower on"], body)
 
 
-def input_error_table(rows: List[Dict[str, Any]]) -> str:
+def input_error_table(rows: list[dict[str, Any]]) -> str:
     body = []
     for level, group in group_rows(sorted(rows, key=lambda r: r["level"]), lambda r: r["level"]).items():
         per_scene = {r["scene"]: r for r in group}.values()
@@ -94,7 +105,7 @@ def input_error_table(rows: List[Dict[str, Any]]) -> str:
     return markdown_table(["level", "input PSNR dB (perturbed views)", "mean per-view RMSE (x axis)"], body)
 
 
-def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
+def report(rows: list[dict[str, Any]], out: Path, meta: dict[str, Any]) -> list[Path]:
     sections = report_sections("Error against the size of the view inconsistency (Lemma 1, Theorem 1)", meta, rows, [
         "## Measured input error per level (mean ± sd over scenes)", input_error_table(rows),
         "## Lemma 1 and Theorem 1",
@@ -114,7 +125,7 @@ EXPERIMENT = Experiment("sweep", "Inconsistency sweep (Lemma 1, Theorem 1)", __d
                         axis_scenes=True, fixed=("level",))
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     return bench_main(EXPERIMENT, argv)
 
 

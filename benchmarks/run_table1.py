@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any
 
-from va_plugin.bench.cli import Experiment, main as bench_main, paired_rows
+from va_plugin.bench.cli import Experiment, paired_rows
+from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.report import delta_table, plot_time_curves, report_sections, write_outputs
 from va_plugin.bench.rows import RowSpec, scene_of
 
@@ -35,11 +36,11 @@ PAPER_TABLE1 = {
 (rendering loss: 5 and 7 minutes)."""
 
 
-def plan(preset, args, sources: List[str]) -> List[RowSpec]:
+def plan(preset, args, sources: list[str]) -> list[RowSpec]:
     return [row for source in sources for row in paired_rows("table1", scene_of(source, preset, args.seed), args)]
 
 
-def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
+def report(rows: list[dict[str, Any]], out: Path, meta: dict[str, Any]) -> list[Path]:
     sections = report_sections("Table 1: original vs view-adaptive training", meta, rows, [
         "## View-adaptive minus original, paired by scene",
         "CD change is relative (negative is better), time ratio is adaptive / original training seconds; "

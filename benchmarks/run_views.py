@@ -17,9 +17,10 @@ from __future__ import annotations
 
 import sys
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any
 
-from va_plugin.bench.cli import Experiment, axis_values, main as bench_main, paired_axis_rows
+from va_plugin.bench.cli import Experiment, axis_values, paired_axis_rows
+from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.report import axis_table, plot_against, report_sections, write_outputs
 from va_plugin.bench.rows import RowSpec
 
@@ -29,12 +30,12 @@ def add_arguments(parser) -> None:
                         "preset's, 4,8,12,16; smoke: 4,8)")
 
 
-def plan(preset, args, sources: List[str]) -> List[RowSpec]:
+def plan(preset, args, sources: list[str]) -> list[RowSpec]:
     return paired_axis_rows("views", preset, args, sources, axis_values(args.view_counts, preset.view_counts),
                             "views")
 
 
-def report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any]) -> List[Path]:
+def report(rows: list[dict[str, Any]], out: Path, meta: dict[str, Any]) -> list[Path]:
     sections = report_sections("Fig. 5: reconstruction error against the number of input views", meta, rows, [
         "## Chamfer distance (mean ± sd over scenes; CD change: adaptive against original, paired by scene)",
         axis_table(rows, "views", "cd", "views:"),

@@ -18,20 +18,19 @@ import argparse
 import json
 import statistics
 from pathlib import Path
-from typing import Dict, List, Tuple
 
 METRICS = (("psnr", "held-out PSNR (dB), higher is better"), ("lpips", "LPIPS, lower is better"),
            ("cd", "Chamfer distance, lower is better"))
 
 
-def parse_arm(text: str) -> Tuple[str, List[str], float]:
+def parse_arm(text: str) -> tuple[str, list[str], float]:
     """``NAME=VARIANTS@SECONDS`` -> (name, variants, seconds)."""
     try:
         name, rest = text.split("=", 1)
         variants, seconds = rest.rsplit("@", 1)
         return name, variants.split(","), float(seconds)
     except ValueError:
-        raise SystemExit(f"error: --arm takes NAME=VARIANT[,VARIANT...]@SECONDS, got {text!r}")
+        raise SystemExit(f"error: --arm takes NAME=VARIANT[,VARIANT...]@SECONDS, got {text!r}") from None
 
 
 def main() -> int:
@@ -43,7 +42,7 @@ def main() -> int:
     args = parser.parse_args()
     arms = [parse_arm(a) for a in args.arm]
     rows = [json.loads(line) for line in args.rows.read_text().splitlines() if line.strip()]
-    by: Dict[Tuple[str, str], dict] = {(r["object"], r.get("variant", "")): r for r in rows if r["views"] == args.views}
+    by: dict[tuple[str, str], dict] = {(r["object"], r.get("variant", "")): r for r in rows if r["views"] == args.views}
     objects = sorted(o for o in {o for o, _ in by} if all((o, v) in by for _, vs, _ in arms for v in vs))
     if not objects:
         raise SystemExit("error: no object has rows for every variant of every arm")
@@ -52,7 +51,7 @@ def main() -> int:
     import matplotlib.pyplot as plt
 
     fig, axes = plt.subplots(1, 3, figsize=(12, 3.6))
-    print(f"| arm | wall s per object | " + " | ".join(m for m, _ in METRICS) + " | runs |")
+    print("| arm | wall s per object | " + " | ".join(m for m, _ in METRICS) + " | runs |")
     print("|---|---|" + "---|" * len(METRICS) + "---|")
     for index, (name, variants, seconds) in enumerate(arms):
         colour = f"C{index}"

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from typing import Callable, Dict, Optional
+from collections.abc import Callable
 
 from va_plugin.adaptive.field import ViewAdaptiveFieldConfig
 from va_plugin.engine.optimizers import OptimizerConfig
@@ -10,7 +10,7 @@ from va_plugin.engine.trainer import TrainerConfig
 from va_plugin.registry import MethodSpecification, Preset
 
 
-def wrap_field(config: TrainerConfig, method_name: str, adaptive_lr: Optional[float] = None,
+def wrap_field(config: TrainerConfig, method_name: str, adaptive_lr: float | None = None,
                **options) -> TrainerConfig:
     """The backbone's field goes inside a ViewAdaptiveField; the branches + attention get their own
     optimizer group ("adaptive"), by default at the shared field's base learning rate (the paper
@@ -40,7 +40,7 @@ def on_base_field(preset: Callable[[TrainerConfig], None]) -> Callable[[TrainerC
 def adaptive_method(backbone: MethodSpecification, method_name: str, description: str,
                     **options) -> MethodSpecification:
     """The view-adaptive variant of a registered backbone, with the backbone's presets wrapped."""
-    presets: Dict[str, Preset] = {
+    presets: dict[str, Preset] = {
         name: Preset(f"{preset.description} (the {backbone.config.method_name} preset, wrapped)",
                      on_base_field(preset.apply))
         for name, preset in backbone.presets.items()

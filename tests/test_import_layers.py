@@ -10,13 +10,12 @@ import ast
 import subprocess
 import sys
 from pathlib import Path
-from typing import Dict, List, Set
 
 REPO = Path(__file__).resolve().parents[1]
 PACKAGES = ("va_plugin", "method_configs")
 
 
-def _modules() -> Dict[str, Path]:
+def _modules() -> dict[str, Path]:
     found = {}
     for package in PACKAGES:
         for path in sorted((REPO / package).rglob("*.py")):
@@ -33,8 +32,8 @@ def _is_type_checking(node: ast.If) -> bool:
         (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
 
 
-def _imported_names(tree: ast.AST, module: str, is_package: bool) -> Set[str]:
-    names: Set[str] = set()
+def _imported_names(tree: ast.AST, module: str, is_package: bool) -> set[str]:
+    names: set[str] = set()
 
     def visit(node: ast.AST) -> None:
         if isinstance(node, ast.If) and _is_type_checking(node):
@@ -59,10 +58,10 @@ def _imported_names(tree: ast.AST, module: str, is_package: bool) -> Set[str]:
     return names
 
 
-def import_graph() -> Dict[str, Set[str]]:
+def import_graph() -> dict[str, set[str]]:
     """module -> the modules of our packages it imports."""
     modules = _modules()
-    graph: Dict[str, Set[str]] = {}
+    graph: dict[str, set[str]] = {}
     for name, path in modules.items():
         tree = ast.parse(path.read_text(encoding="utf-8"))
         edges = {target for target in _imported_names(tree, name, path.name == "__init__.py") if target in modules}
@@ -74,12 +73,12 @@ def import_graph() -> Dict[str, Set[str]]:
     return graph
 
 
-def find_cycle(graph: Dict[str, Set[str]]) -> List[str]:
+def find_cycle(graph: dict[str, set[str]]) -> list[str]:
     """One circle of the graph as a list of modules (first repeated at the end), or []."""
-    state: Dict[str, int] = {}
-    stack: List[str] = []
+    state: dict[str, int] = {}
+    stack: list[str] = []
 
-    def visit(node: str) -> List[str]:
+    def visit(node: str) -> list[str]:
         state[node] = 1
         stack.append(node)
         for nxt in sorted(graph[node]):
@@ -101,9 +100,9 @@ def find_cycle(graph: Dict[str, Set[str]]) -> List[str]:
     return []
 
 
-def dependency_order(graph: Dict[str, Set[str]]) -> List[str]:
-    order: List[str] = []
-    done: Set[str] = set()
+def dependency_order(graph: dict[str, set[str]]) -> list[str]:
+    order: list[str] = []
+    done: set[str] = set()
 
     def visit(node: str) -> None:
         if node in done:

@@ -15,7 +15,6 @@ Conventions (one place, stated once):
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Tuple
 
 import torch
 
@@ -78,17 +77,17 @@ class Cameras:
         """Camera positions ``[n, 3]``."""
         return self.c2w[:, :, 3]
 
-    def to(self, device: torch.device) -> "Cameras":
+    def to(self, device: torch.device) -> Cameras:
         return Cameras(self.c2w.to(device), self.fx.to(device), self.fy.to(device), self.cx.to(device),
                        self.cy.to(device), self.width, self.height, self.camera_type, self.pixel_offset)
 
-    def subset(self, indices) -> "Cameras":
+    def subset(self, indices) -> Cameras:
         """The cameras at ``indices`` (a list or long tensor)."""
         idx = torch.as_tensor(indices, dtype=torch.long)
         return Cameras(self.c2w[idx], self.fx[idx], self.fy[idx], self.cx[idx], self.cy[idx],
                        self.width, self.height, self.camera_type, self.pixel_offset)
 
-    def scaled(self, factor: float) -> "Cameras":
+    def scaled(self, factor: float) -> Cameras:
         """The same cameras for images resized by ``factor`` (exact for ``pixel_offset = 0.5``, else
         within half a pixel)."""
         width, height = max(1, round(self.width * factor)), max(1, round(self.height * factor))
@@ -97,7 +96,7 @@ class Cameras:
                        self.camera_type, self.pixel_offset)
 
     def generate_rays(self, camera_indices: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor
-                      ) -> Tuple[torch.Tensor, torch.Tensor]:
+                      ) -> tuple[torch.Tensor, torch.Tensor]:
         """World origins ``[n_rays, 3]`` and unit directions ``[n_rays, 3]`` of the rays through pixels
         ``rows, cols`` ``[n_rays]`` (float allowed) of the views ``camera_indices`` ``[n_rays]``."""
         c2w = self.c2w[camera_indices]
@@ -112,7 +111,7 @@ class Cameras:
         origins = position + torch.einsum("nij,nj->ni", rotation, offset)
         return origins, rotation[:, :, 2].contiguous()
 
-    def pixel_grid(self, camera_index: int) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def pixel_grid(self, camera_index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Camera indices, rows and columns of every pixel of one view, row-major ``[H*W]``."""
         device = self.c2w.device
         rows, cols = torch.meshgrid(torch.arange(self.height, device=device),
@@ -120,7 +119,7 @@ class Cameras:
         rows, cols = rows.reshape(-1), cols.reshape(-1)
         return torch.full_like(rows, camera_index), rows, cols
 
-    def project(self, points: torch.Tensor, camera_index: int) -> Tuple[torch.Tensor, torch.Tensor]:
+    def project(self, points: torch.Tensor, camera_index: int) -> tuple[torch.Tensor, torch.Tensor]:
         """Project world points ``[m, 3]`` into one view: ``uv [m, 2]`` (column, row) in pixel-index
         coordinates, and depth ``[m]`` along +z."""
         c2w = self.c2w[camera_index]

@@ -13,12 +13,13 @@ import dataclasses
 import difflib
 import functools
 import inspect
+import itertools
 import json
 import math
 import textwrap
 from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import PurePath
-from typing import Any, Dict, List, Tuple, Type
+from typing import Any
 
 from va_plugin.errors import ConfigError
 
@@ -27,7 +28,7 @@ from va_plugin.errors import ConfigError
 class InstantiateConfig:
     """A config that builds the object it describes."""
 
-    _target: Type = field(default=None, repr=False)  # type: ignore[assignment]
+    _target: type = field(default=None, repr=False)  # type: ignore[assignment]
 
     def setup(self, **kwargs: Any) -> Any:
         """Build the target object from this config."""
@@ -189,11 +190,11 @@ def _nearest_keys(config: Any, key: str) -> str:
     return "; --help-config lists every key"
 
 
-@functools.lru_cache(maxsize=None)
-def field_docstrings(cls: type) -> Dict[str, str]:
+@functools.cache
+def field_docstrings(cls: type) -> dict[str, str]:
     """The docstring under each field of a dataclass and of its dataclass bases (nerfstudio's habit: a
     string literal right after the field), by field name; a subclass's text wins."""
-    docs: Dict[str, str] = {}
+    docs: dict[str, str] = {}
     for klass in reversed(cls.__mro__):
         if not is_dataclass(klass):
             continue
@@ -202,7 +203,7 @@ def field_docstrings(cls: type) -> Dict[str, str]:
         except (OSError, TypeError, SyntaxError):  # no source at hand (a frozen or generated class)
             continue
         body = tree.body[0].body if tree.body and isinstance(tree.body[0], ast.ClassDef) else []
-        for node, after in zip(body, body[1:]):
+        for node, after in itertools.pairwise(body):
             if (isinstance(node, ast.AnnAssign) and isinstance(node.target, ast.Name)
                     and isinstance(after, ast.Expr) and isinstance(after.value, ast.Constant)
                     and isinstance(after.value.value, str)):
@@ -210,10 +211,10 @@ def field_docstrings(cls: type) -> Dict[str, str]:
     return docs
 
 
-def describe_options(config: Any, prefix: str = "") -> List[Tuple[str, Any, str]]:
+def describe_options(config: Any, prefix: str = "") -> list[tuple[str, Any, str]]:
     """Every ``--set`` key of a config below ``prefix``: (dotted key, current value, docstring), in the
     order of the fields; nested configs (and dicts of them, e.g. ``optimizers.fields.lr``) are walked."""
-    rows: List[Tuple[str, Any, str]] = []
+    rows: list[tuple[str, Any, str]] = []
     docs = field_docstrings(type(config))
     for item in fields(config):
         if item.name.startswith("_") or not item.repr:  # the target class, internal flags

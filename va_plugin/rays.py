@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional, Tuple
 
 import torch
 
@@ -15,19 +14,19 @@ class RayBundle:
     origins: torch.Tensor  # [n_rays, 3]
     directions: torch.Tensor  # [n_rays, 3] unit vectors
     camera_indices: torch.Tensor  # [n_rays] long: the training view of each ray (-1: novel view)
-    nears: Optional[torch.Tensor] = None  # [n_rays, 1] where the ray enters the scene bound (set by the model)
-    fars: Optional[torch.Tensor] = None  # [n_rays, 1] where it leaves it
+    nears: torch.Tensor | None = None  # [n_rays, 1] where the ray enters the scene bound (set by the model)
+    fars: torch.Tensor | None = None  # [n_rays, 1] where it leaves it
 
     def __len__(self) -> int:
         return self.origins.shape[0]
 
-    def __getitem__(self, index) -> "RayBundle":
-        pick = lambda t: None if t is None else t[index]  # noqa: E731
+    def __getitem__(self, index) -> RayBundle:
+        pick = lambda t: None if t is None else t[index]
         return RayBundle(self.origins[index], self.directions[index], self.camera_indices[index],
                          pick(self.nears), pick(self.fars))
 
-    def to(self, device: torch.device) -> "RayBundle":
-        move = lambda t: None if t is None else t.to(device)  # noqa: E731
+    def to(self, device: torch.device) -> RayBundle:
+        move = lambda t: None if t is None else t.to(device)
         return RayBundle(self.origins.to(device), self.directions.to(device), self.camera_indices.to(device),
                          move(self.nears), move(self.fars))
 
@@ -43,7 +42,7 @@ class RaySamples:
     camera_indices: torch.Tensor  # [n_rays] long
 
     @staticmethod
-    def from_edges(ray_bundle: RayBundle, t_edges: torch.Tensor) -> "RaySamples":
+    def from_edges(ray_bundle: RayBundle, t_edges: torch.Tensor) -> RaySamples:
         """Samples between consecutive section edges ``t_edges [n_rays, n_samples + 1]``."""
         deltas = t_edges[:, 1:] - t_edges[:, :-1]
         t_mid = t_edges[:, :-1] + 0.5 * deltas
@@ -52,7 +51,7 @@ class RaySamples:
 
 
 def near_far_from_sphere(origins: torch.Tensor, directions: torch.Tensor, radius: float,
-                         min_near: float = 0.0) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+                         min_near: float = 0.0) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
     """Where rays enter and leave a sphere of ``radius`` at the origin, from the point of closest
     approach (the textbook discriminant loses every digit in fp32 for a far camera).
 

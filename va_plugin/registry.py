@@ -15,9 +15,9 @@ from __future__ import annotations
 import copy
 import importlib
 import os
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
-from typing import Callable, Dict, Optional
 
 from method_configs import BUILTIN_METHODS
 from va_plugin.errors import ConfigError
@@ -42,10 +42,10 @@ class MethodSpecification:
     """The full ``TrainerConfig`` of the method, with every default."""
     description: str
     """One line shown by ``va-train --help``."""
-    presets: Dict[str, Preset] = field(default_factory=dict)
+    presets: dict[str, Preset] = field(default_factory=dict)
     """Named variants, applied with ``--preset NAME``."""
 
-    def make_config(self, preset: Optional[str] = None):
+    def make_config(self, preset: str | None = None):
         """A fresh copy of the method's config, with a preset applied when one is named."""
         config = copy.deepcopy(self.config)
         if preset not in (None, "", "default"):
@@ -75,7 +75,7 @@ def _load_reference(reference: str, origin: str) -> MethodSpecification:
     return spec
 
 
-def _entry_point_methods() -> Dict[str, MethodSpecification]:
+def _entry_point_methods() -> dict[str, MethodSpecification]:
     methods = {}
     for entry_point in metadata.entry_points(group=ENTRY_POINT_GROUP):
         spec = entry_point.load()
@@ -85,7 +85,7 @@ def _entry_point_methods() -> Dict[str, MethodSpecification]:
     return methods
 
 
-def _environment_methods() -> Dict[str, MethodSpecification]:
+def _environment_methods() -> dict[str, MethodSpecification]:
     methods = {}
     text = os.environ.get(ENV_VAR, "").strip()
     for item in filter(None, (part.strip() for part in text.split(","))):
@@ -96,12 +96,12 @@ def _environment_methods() -> Dict[str, MethodSpecification]:
     return methods
 
 
-def builtin_methods() -> Dict[str, MethodSpecification]:
+def builtin_methods() -> dict[str, MethodSpecification]:
     """The methods shipped in ``method_configs`` (also reachable without an installed package)."""
     return {name: _load_reference(reference, "method_configs") for name, reference in BUILTIN_METHODS.items()}
 
 
-def discover_methods() -> Dict[str, MethodSpecification]:
+def discover_methods() -> dict[str, MethodSpecification]:
     """Every method: the built-in ones, the entry points, then the environment variable (last wins)."""
     methods = builtin_methods()
     methods.update(_entry_point_methods())

@@ -2,8 +2,8 @@ import json
 
 import numpy as np
 import pytest
-
 from conftest import tiny_config
+
 from va_plugin.adaptive.diagnostics import attention_picture, overlap_scores
 from va_plugin.cli.export import main as export_main
 from va_plugin.data.images import read_image
@@ -76,7 +76,8 @@ def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, tiny_
     trainer.train()
     field = trainer.model.field
     with torch.no_grad():  # make the branches and the attention matter
-        for p in list(field.branches.parameters()) + ([] if field.attention is None else list(field.attention.parameters())):
+        for p in list(field.branches.parameters()) + ([] if field.attention is None
+                                                       else list(field.attention.parameters())):
             p.add_(0.05 * torch.randn_like(p))
     maps = inconsistency_maps(trainer.pipeline, scale=1.0)
     assert not field.also_canonical

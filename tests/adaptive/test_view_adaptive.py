@@ -5,8 +5,8 @@ import json
 
 import pytest
 import torch
-
 from conftest import tiny_config
+
 from va_plugin.adaptive.field import BRANCHES, FUSION, PRETRAIN, ViewAdaptiveField, ViewAdaptiveFieldConfig
 from va_plugin.adaptive.phases import RESIDUALS_FILE, phase_at
 from va_plugin.errors import ConfigError
@@ -125,7 +125,7 @@ def test_phase_one_trains_exactly_what_the_plain_backbone_trains(backbone, tiny_
     the wrapped method leaves the shared field bit-for-bit where the plain method's training leaves it."""
     plain = tiny_config(backbone, tiny_scene, tmp_path / "plain", steps=3).setup()
     plain.train()
-    expected = {k: v for k, v in plain.model.field.state_dict().items()}
+    expected = dict(plain.model.field.state_dict().items())
     for fusion in ("true", "false"):
         wrapped = _trainer(f"va-{backbone}", tiny_scene, tmp_path / f"va-{fusion}", steps=3,
                            **{"pipeline.model.field.pretrain_fraction": 1.0,
@@ -316,7 +316,7 @@ def test_the_consistency_check_renders_a_fixed_pixel_budget_over_all_views(tiny_
     model.render_rays = lambda rays, **kw: sizes.append(len(rays)) or render(rays, **kw)
     # with masks: foreground pixels only, spread evenly, the budget shared out over the views
     counts = [int((dm.masks[v, ..., 0] > 0.5).sum()) for v in range(4)]
-    assert 0 < min(counts) and max(counts) < 24 * 24
+    assert min(counts) > 0 and max(counts) < 24 * 24
     every = view_residuals(trainer.pipeline, foreground_pixels=10 ** 6)
     assert sizes == counts and all(r["psnr"] == r["psnr_foreground"] for r in every)
     sizes.clear()
@@ -340,7 +340,7 @@ def test_the_wrapper_passes_only_named_queries_to_its_base(base, tiny_scene, tmp
         assert hasattr(field, name) == hasattr(field.base, name), name
     assert hasattr(field.base, "encoding") and not hasattr(field, "encoding")  # no accidental passthrough
     with pytest.raises(AttributeError):
-        field.no_such_attribute
+        _ = field.no_such_attribute
 
 
 def test_the_regularizers_leave_the_shared_field_alone(tiny_scene, tmp_path):
@@ -357,7 +357,7 @@ def test_the_regularizers_leave_the_shared_field_alone(tiny_scene, tmp_path):
     ray_bundle, batch = trainer.pipeline.datamanager.next_train(6)
     losses = model.get_loss_dict(model.get_outputs(ray_bundle), batch)
     assert losses["consistency"] > 0
-    shared = [p for p in field.base.parameters()]
+    shared = list(field.base.parameters())
     adaptive = list(field.branches.parameters()) + list(field.attention.parameters())
     for name in ("consistency", "entropy"):
         to_shared = torch.autograd.grad(losses[name], shared, retain_graph=True, allow_unused=True)

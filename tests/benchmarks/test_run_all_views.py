@@ -2,7 +2,6 @@
 a real row takes minutes on ../shared/data)."""
 
 import pytest
-
 from bench_scripts import load_script
 
 

@@ -10,8 +10,6 @@ import json
 import pytest
 from bench_scripts import load_script
 
-from va_plugin.errors import ConfigError
-
 
 @pytest.fixture(scope="module")
 def backbone():

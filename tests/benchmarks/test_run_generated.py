@@ -4,7 +4,6 @@ the table. (Training itself is the CLI's, tested elsewhere; a real run on ../sha
 import json
 
 import pytest
-
 from bench_scripts import load_script
 
 

@@ -4,9 +4,8 @@ scores, bake counts, a timed bake from more views), resumable, and the summary t
 import json
 
 import pytest
-from conftest import tiny_trained_run
-
 from bench_scripts import load_script
+from conftest import tiny_trained_run
 
 
 @pytest.fixture(scope="module")
@@ -41,7 +40,8 @@ def test_scores_field_and_both_fusions_and_resumes(run, tmp_path, capsys):
     records = [json.loads(line) for line in out.read_text().splitlines()]
     assert [r["supersample"] for r in records] == [1, 1, 2]
     assert records[2]["field"] == records[0]["field"] and records[2]["robust"]["psnr"] != records[0]["robust"]["psnr"]
-    assert script.resume_key({k: v for k, v in records[2].items() if k != "supersample"}) == script.resume_key(records[2])
+    assert (script.resume_key({k: v for k, v in records[2].items() if k != "supersample"})
+            == script.resume_key(records[2]))
     assert script.main(argv + ["--supersample", "0"]) == 2
     assert script.main(argv[:-7] + ["100", "--max-views", "1"]) == 2  # not a power of two: one line, exit 2
     assert script.main(argv[:-2] + ["--bakes", "median"]) == 2  # an unknown bake: one line, exit 2

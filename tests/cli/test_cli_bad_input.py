@@ -164,14 +164,16 @@ def broken_run(trained, tmp_path, how):
         torch.save({"weights": torch.zeros(3)}, path)
     elif how == "nan-checkpoint":
         state = torch.load(path, weights_only=False)
-        state["model"]["field.sdf_net.out.bias"] = torch.full_like(state["model"]["field.sdf_net.out.bias"], float("nan"))
+        state["model"]["field.sdf_net.out.bias"] = torch.full_like(state["model"]["field.sdf_net.out.bias"],
+                                                                    float("nan"))
         torch.save(state, path)
     elif how == "no-checkpoint":
         path.unlink()
     return run
 
 
-CHECKPOINT_CASES = [("corrupt-checkpoint", "no readable checkpoint"), ("truncated-checkpoint", "no readable checkpoint"),
+CHECKPOINT_CASES = [("corrupt-checkpoint", "no readable checkpoint"),
+                    ("truncated-checkpoint", "no readable checkpoint"),
                     ("foreign-checkpoint", "not a va-plugin checkpoint"), ("nan-checkpoint", "NaN or infinite values"),
                     ("no-checkpoint", "holds no checkpoint")]
 

@@ -6,12 +6,11 @@ import json
 import numpy as np
 import pytest
 import trimesh
+from conftest import tiny_config, write_syncdreamer_strip
 
 from va_plugin.cli import recon, train
 from va_plugin.data.dataparsers import resolve_dataparser
 from va_plugin.engine.health import HealthConfig, UnusableModel, check_usable
-
-from conftest import tiny_config, write_syncdreamer_strip
 
 TINY = ["--set", "pipeline.datamanager.rays_per_batch=32", "--set", "pipeline.model.n_samples=8",
         "--set", "pipeline.model.n_importance=8", "--set", "pipeline.model.crossings_samples=16",
@@ -81,7 +80,7 @@ def test_help_lists_presets_and_next_step():
 
 
 def test_opaque_alpha_falls_back_to_the_colour_key(tmp_path):
-    from va_plugin.data.images import write_image, read_image
+    from va_plugin.data.images import read_image, write_image
 
     path = write_syncdreamer_strip(tmp_path / "rgb.png", tile=32)
     rgb = read_image(path)

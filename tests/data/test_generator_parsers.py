@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 import torch
-import trimesh
+from conftest import render_views, toy_albedo, toy_object
 
 from va_plugin.cameras import opengl_to_opencv
 from va_plugin.cli import train as train_cli
@@ -17,8 +17,6 @@ from va_plugin.data.dataparsers import FORMATS, detect_format, resolve_dataparse
 from va_plugin.data.images import read_image, write_image
 from va_plugin.data.scenes.raycast import MeshRenderer, position_albedo
 from va_plugin.errors import DataError
-
-from conftest import render_views, toy_albedo, toy_object
 
 SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 GENERATED = SHARED_DATA / "generated"
@@ -155,7 +153,7 @@ def test_a_wrong_elevation_explains_the_silhouettes_worse(syncdreamer_strip):
 
 
 def test_wonder3d_folder_is_orthographic_with_world_normals(wonder3d_folder):
-    folder, cameras, alpha = wonder3d_folder
+    folder, _cameras, alpha = wonder3d_folder
     train, test = parse(folder)
     assert test is None and train.cameras.camera_type == "orthographic"
     assert train.metadata["view_names"][2].endswith("rgb_000_right.png")
@@ -195,7 +193,8 @@ def test_wonder3d_alpha_and_masks_named_by_view(renderer, tmp_path):
     for k, (view, _) in enumerate(rigs.WONDER3D_VIEWS):
         write_image(tmp_path / "scene" / "masked_colors" / f"rgb_000_{view}.png", rgba[k])
         # the user's masks: named by view, so sorted order (back, front, ...) must not matter
-        write_image(tmp_path / "masks" / f"mask_{view}.png", np.repeat(rgba[k, ..., 3:] > 0.5, 3, -1).astype(np.float32))
+        write_image(tmp_path / "masks" / f"mask_{view}.png",
+                    np.repeat(rgba[k, ..., 3:] > 0.5, 3, -1).astype(np.float32))
     train, _ = parse(tmp_path / "scene")
     assert train.metadata["mask_source"] == "alpha channel" and "normals" not in train.metadata
     assert torch.allclose(train.masks[..., 0], torch.from_numpy(rgba[..., 3]), atol=1 / 255)
@@ -228,7 +227,7 @@ def test_bad_layouts_name_the_expected_one(tmp_path, syncdreamer_strip, renderer
         parse(syncdreamer_strip[0], "zero123pp")
     partial = tmp_path / "w3d"
     write_wonder3d(partial, renderer, normals=False, skip=("back", "left"))
-    with pytest.raises(DataError, match="missing the Wonder3D view.s. back, left; expected a folder with rgb_000"):
+    with pytest.raises(DataError, match=r"missing the Wonder3D view\(s\) back, left; expected a folder with rgb_000"):
         parse(partial, "wonder3d")
 
 

@@ -47,7 +47,7 @@ def test_syncdreamer_rig_matches_camera_16_pkl():
 def test_syncdreamer_hand_computed_directions():
     rig = rigs.syncdreamer_rig(256, pixel_offset=0.0)
     # camera 0 sits on +x looking at the origin, z up: +y appears to the right, +z above the centre
-    uv, depth = rig.project(torch.tensor([[0.0, 0.2, 0.0], [0.0, 0.0, 0.2]]), 0)
+    uv, _depth = rig.project(torch.tensor([[0.0, 0.2, 0.0], [0.0, 0.0, 0.2]]), 0)
     assert uv[0, 0] > 128.0 and abs(float(uv[0, 1]) - 128.0) < 1e-3
     assert uv[1, 1] < 128.0 and abs(float(uv[1, 0]) - 128.0) < 1e-3
     # camera 4 (azimuth 90) sits on +y: there +x appears to the left
@@ -75,7 +75,7 @@ def test_zero123pp_rig_follows_instantmesh_formula(version, elevations, fov):
     point = c2w[:, 3] + 4.0 * (c2w[:, 2] - math.tan(half) * c2w[:, 1])
     uv, _ = rig.project(point[None], 0)
     assert float(uv[0, 1]) == pytest.approx(-0.5, abs=1e-3)
-    with pytest.raises(ConfigError, match="v1.1, v1.2"):
+    with pytest.raises(ConfigError, match=r"v1\.1, v1\.2"):
         rigs.zero123pp_rig("v2")
 
 
@@ -106,7 +106,7 @@ def test_wonder3d_relative_poses_match_fixed_poses():
 def test_wonder3d_orthographic_projection():
     rig = rigs.wonder3d_rig(256)
     # front camera on +x looking at -x: world +y is to the right, +z up; 256 px span 1.35 world units
-    uv, depth = rig.project(torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.675, 0.0], [0.0, 0.0, 0.675], [-0.3, 0.1, 0.0]]), 0)
+    uv, _depth = rig.project(torch.tensor([[0.0, 0.0, 0.0], [0.0, 0.675, 0.0], [0.0, 0.0, 0.675], [-0.3, 0.1, 0.0]]), 0)
     assert torch.allclose(uv[0], torch.tensor([127.5, 127.5]))
     assert torch.allclose(uv[1], torch.tensor([255.5, 127.5]), atol=1e-4)
     assert torch.allclose(uv[2], torch.tensor([127.5, -0.5]), atol=1e-4)

@@ -19,8 +19,8 @@ from va_plugin.data.scenes.raycast import MeshRenderer
 from va_plugin.data.scenes.rig import benchmark_cameras, syncdreamer_rig
 from va_plugin.data.scenes.shapes import OBJECTS, object_mesh
 from va_plugin.data.scenes.sources import ImageSource, load_source
-from va_plugin.eval import psnr
 from va_plugin.errors import ConfigError, DataError
+from va_plugin.eval import psnr
 
 REPO = Path(__file__).resolve().parents[2]
 SHARED_DATA = REPO.parent / "shared" / "data"
@@ -196,7 +196,8 @@ def test_gso_scene_can_hold_out_views_off_the_rig(tmp_path):
     src = load_source("gso:alarm", 32, GSO_ROOT, gso_off_rig=True)
     rig = benchmark_cameras(32, extra=False)
     baked, real = src.baked_renderer(rig).render(rig, 3), src.images[3]
-    assert psnr(baked[..., :3] * baked[..., 3:] + 1 - baked[..., 3:], real[..., :3] * real[..., 3:] + 1 - real[..., 3:]) > 24
+    assert psnr(baked[..., :3] * baked[..., 3:] + 1 - baked[..., 3:],
+                real[..., :3] * real[..., 3:] + 1 - real[..., 3:]) > 24
 
 
 def test_image_source_pose_error_matches_a_true_rerender():

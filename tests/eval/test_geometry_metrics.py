@@ -95,7 +95,7 @@ def test_empty_or_invalid_meshes_raise_clear_errors(sphere):
             fn(sphere, empty)
     with pytest.raises(ValueError, match="empty"):
         sample_surface(empty, 10, seed=0)
-    with pytest.raises(TypeError, match="trimesh.Trimesh"):
+    with pytest.raises(TypeError, match=r"trimesh\.Trimesh"):
         chamfer_distance(trimesh.Scene(), sphere)
     with pytest.raises(ValueError, match="bound"):
         volume_iou(sphere, sphere, bound=[[0, 0, 0], [0, 1, 1]])

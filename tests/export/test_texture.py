@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 import trimesh
-
 from texture_cases import RES, SIX_SIDES, TEXTURE, cube, cube_views, smooth_colour, texel_truth
+
 from va_plugin.data.rigs import orbit_cameras
 from va_plugin.errors import VAError
 from va_plugin.eval.mesh_render import UnlitMeshRenderer, render_on_background, textured_renderer

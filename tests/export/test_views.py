@@ -2,8 +2,8 @@
 
 import numpy as np
 import trimesh
-
 from texture_cases import RES, SIX_SIDES, TEXTURE, cube, cube_views, texel_truth
+
 from va_plugin.data.rigs import orbit_cameras
 from va_plugin.eval.mesh_render import UnlitMeshRenderer
 from va_plugin.export.texture import bake_texture

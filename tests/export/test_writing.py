@@ -3,8 +3,8 @@
 import numpy as np
 import pytest
 import trimesh
-
 from texture_cases import SIX_SIDES, TEXTURE, cube, cube_views
+
 from va_plugin.errors import VAError
 from va_plugin.export.texture import bake_texture
 from va_plugin.export.writing import check_texture_output, write_textured_mesh
@@ -32,5 +32,5 @@ def test_written_files_load_back_with_their_texture(tmp_path, suffix):
 
 
 def test_other_formats_are_refused(tmp_path):
-    with pytest.raises(VAError, match=".glb or .obj"):
+    with pytest.raises(VAError, match=r"\.glb or \.obj"):
         check_texture_output(tmp_path / "mesh.ply")

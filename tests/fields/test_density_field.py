@@ -51,7 +51,7 @@ def test_density_gradient_reaches_the_hash_table():
 
 def test_empty_input_keeps_a_graph():
     field = _small_field()
-    raw, features = field.geometry(torch.zeros(0, 3))
+    raw, _features = field.geometry(torch.zeros(0, 3))
     assert raw.shape == (0, 1) and raw.requires_grad
     raw.sum().backward()
 

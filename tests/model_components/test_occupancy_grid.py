@@ -3,8 +3,7 @@ import torch
 
 from va_plugin.cameras import Cameras
 from va_plugin.errors import ConfigError
-from va_plugin.model_components.occupancy_grid import (OccupancyGrid, OccupancyGridConfig, scatter,
-                                                        transmittance_before)
+from va_plugin.model_components.occupancy_grid import OccupancyGrid, OccupancyGridConfig, scatter, transmittance_before
 
 
 def _grid(**changes) -> OccupancyGrid:
@@ -45,7 +44,7 @@ def test_max_decay_forgets_a_cell_that_empties():
         grid.update(step, _ball())
     centre, elsewhere = torch.zeros(1, 3), torch.tensor([[0.5, 0.0, 0.0]])
     assert grid.occupied(centre).all() and not grid.occupied(elsewhere).any()
-    moved = lambda p: _ball()(p - elsewhere)  # noqa: E731
+    moved = lambda p: _ball()(p - elsewhere)
     grid.update(12, moved)
     assert grid.occupied(centre).all() and grid.occupied(elsewhere).all()  # the max remembers the old ball
     for step in range(13, 22):
@@ -77,7 +76,7 @@ def test_cells_outside_the_views_are_never_occupied_after_warmup():
     cameras = Cameras(c2w, 40.0, 40.0, 8.0, 8.0, 16, 16)
     grid = _grid(warmup_steps=1)
     grid.restrict_to_views(cameras, min_views=1)
-    dense_everywhere = lambda p: torch.full(p.shape[:1], 100.0)  # noqa: E731
+    dense_everywhere = lambda p: torch.full(p.shape[:1], 100.0)
     grid.update(0, dense_everywhere)
     assert grid.occupied(torch.tensor([[0.8, 0.0, 0.0]])).all()  # warm-up: nothing pruned
     grid.update(1, dense_everywhere)

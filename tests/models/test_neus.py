@@ -1,7 +1,7 @@
 import pytest
 import torch
-
 from conftest import tiny_config
+
 from va_plugin.model_components.neus import sdf_band
 
 
@@ -127,8 +127,8 @@ def test_surface_crossings_hand_computed():
     from va_plugin.model_components.neus import surface_crossings
 
     torch.manual_seed(0)
-    sphere = lambda p: p.norm(dim=-1) - 0.5  # noqa: E731
-    two_spheres = lambda p: torch.minimum((p - torch.tensor([-0.5, 0.0, 0.0])).norm(dim=-1),  # noqa: E731
+    sphere = lambda p: p.norm(dim=-1) - 0.5
+    two_spheres = lambda p: torch.minimum((p - torch.tensor([-0.5, 0.0, 0.0])).norm(dim=-1),
                                           (p - torch.tensor([0.5, 0.0, 0.0])).norm(dim=-1)) - 0.3
     # along x through the centre, through an off-centre chord, and past the sphere by 0.3 (ten spacings)
     origins = torch.tensor([[-2.0, 0.0, 0.0], [-2.0, 0.3, 0.0], [-2.0, 0.8, 0.0]])
@@ -148,7 +148,7 @@ def test_surface_crossings_gradient_fills_a_gap_and_leaves_a_convex_inside_alone
     torch.manual_seed(0)
     offset = torch.zeros(1, requires_grad=True)  # added to the SDF at the samples: raising it shrinks the shape
     # a line through two touching-but-apart spheres: the gap between them is pushed inside (offset down)
-    two_spheres = lambda p: torch.minimum((p - torch.tensor([-0.32, 0.0, 0.0])).norm(dim=-1),  # noqa: E731
+    two_spheres = lambda p: torch.minimum((p - torch.tensor([-0.32, 0.0, 0.0])).norm(dim=-1),
                                           (p - torch.tensor([0.32, 0.0, 0.0])).norm(dim=-1)) - 0.3 + offset * (
         p[..., 0].abs() < 0.05)
     origin, direction = torch.tensor([[-2.0, 0.0, 0.0]]), torch.tensor([[1.0, 0.0, 0.0]])
@@ -157,7 +157,7 @@ def test_surface_crossings_gradient_fills_a_gap_and_leaves_a_convex_inside_alone
     assert float(offset.grad) > 0.5  # lowering the SDF in the gap (filling it) lowers the count
     # deep inside a convex body the indicator is saturated: no gradient there
     offset.grad = None
-    inner = lambda p: p.norm(dim=-1) - 0.6 + offset * (p.norm(dim=-1) < 0.2)  # noqa: E731
+    inner = lambda p: p.norm(dim=-1) - 0.6 + offset * (p.norm(dim=-1) < 0.2)
     surface_crossings(inner, origin, direction, near, far, 64).sum().backward()
     assert abs(float(offset.grad)) < 1e-3
 

@@ -5,8 +5,8 @@ import math
 
 import pytest
 import torch
-
 from conftest import tiny_config
+
 from va_plugin.errors import ConfigError
 
 

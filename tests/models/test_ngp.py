@@ -1,7 +1,7 @@
 import pytest
 import torch
-
 from conftest import tiny_config
+
 from va_plugin.errors import ConfigError, VAError
 from va_plugin.export.mesh import extract_mesh
 

@@ -16,8 +16,7 @@ from va_plugin.adaptive.losses import attention_entropy, feature_consistency, we
 from va_plugin.fields.density_field import trunc_exp
 from va_plugin.fields.encodings.hash_grid import HashGridEncoding
 from va_plugin.model_components.losses import GRADIENT_BOUND, eikonal_loss, mask_loss, psnr_from_mse
-from va_plugin.model_components.neus import (INV_S_MAX, INV_S_MIN, SDF_BOUND, SingleVariance, neus_alpha,
-                                             section_alpha)
+from va_plugin.model_components.neus import INV_S_MAX, INV_S_MIN, SDF_BOUND, SingleVariance, neus_alpha, section_alpha
 from va_plugin.model_components.renderers import alpha_from_density, render_depth, render_rgb, weights_from_alpha
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
 from va_plugin.models.ngp import distortion
@@ -145,7 +144,8 @@ def test_neus_alpha_at_an_sdf_beyond_the_bound_hand_computed():
     assert finite(*torch.autograd.grad(alpha.sum(), (s, inv_s)))
     # a sane SDF is untouched by the clamp: section from +0.1 to -0.1 at inv_s 10
     hi, lo = torch.sigmoid(torch.tensor(1.0)), torch.sigmoid(torch.tensor(-1.0))
-    assert float(section_alpha(torch.tensor([[0.1, -0.1]]), 10.0)) == pytest.approx(float((hi - lo + 1e-5) / (hi + 1e-5)))
+    assert (float(section_alpha(torch.tensor([[0.1, -0.1]]), 10.0))
+            == pytest.approx(float((hi - lo + 1e-5) / (hi + 1e-5))))
     assert SDF_BOUND == 1e6
 
 

@@ -11,8 +11,8 @@ import textwrap
 from pathlib import Path
 
 import torch
-
 from conftest import tiny_config
+
 from va_plugin.engine.trainer import list_checkpoints, load_checkpoint
 
 TESTS = Path(__file__).resolve().parents[1]

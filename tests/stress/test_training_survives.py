@@ -6,14 +6,14 @@ import warnings
 
 import pytest
 import torch
-
 from conftest import tiny_config
+
 from va_plugin.cli import train as train_cli
 from va_plugin.engine.health import HealthConfig, TrainingDiverged, TrainingGuard
 from va_plugin.engine.trainer import list_checkpoints
 from va_plugin.errors import VAError
-from va_plugin.registry import discover_methods
 from va_plugin.rays import RayBundle
+from va_plugin.registry import discover_methods
 
 METHODS = sorted(discover_methods())
 

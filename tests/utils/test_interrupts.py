@@ -1,3 +1,4 @@
+import contextlib
 import os
 import signal
 import subprocess
@@ -21,18 +22,15 @@ def python_sigint_handler():
 
 def _swallowing_code():
     """What trimesh does around its optional imports."""
-    try:
+    with contextlib.suppress(BaseException):
         time.sleep(0.05)
-    except BaseException:
-        pass
 
 
 def test_a_ctrl_c_inside_the_block_is_raised_after_it():
-    with pytest.raises(KeyboardInterrupt):
-        with interrupt_deferred():
-            os.kill(os.getpid(), signal.SIGINT)
-            _swallowing_code()
-            reached_the_end = True
+    with pytest.raises(KeyboardInterrupt), interrupt_deferred():
+        os.kill(os.getpid(), signal.SIGINT)
+        _swallowing_code()
+        reached_the_end = True
     assert reached_the_end
     assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
 
@@ -110,16 +108,15 @@ def test_sigterm_stops_a_parallel_benchmark_and_its_workers(tmp_path):
         assert process.returncode == 130, output
         assert not [pid for pid in children if _alive(pid)], output
     finally:  # whatever happened, nothing of it keeps running
-        try:
+        with contextlib.suppress(ProcessLookupError):
             os.killpg(process.pid, signal.SIGKILL)
-        except ProcessLookupError:
-            pass
         process.wait()
 
 
 def _cpu_seconds(pid: int) -> float:
     try:
-        fields = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()
+        with open(f"/proc/{pid}/stat") as stat:
+            fields = stat.read().rsplit(")", 1)[1].split()
     except OSError:
         return 0.0
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
@@ -127,7 +124,8 @@ def _cpu_seconds(pid: int) -> float:
 
 def _alive(pid: int) -> bool:
     try:
-        state = open(f"/proc/{pid}/stat").read().rsplit(")", 1)[1].split()[0]
+        with open(f"/proc/{pid}/stat") as stat:
+            state = stat.read().rsplit(")", 1)[1].split()[0]
     except OSError:
         return False
     return state != "Z"

@@ -65,7 +65,8 @@ def run(tmp_path_factory):
 ])
 def test_commands_refuse_requests_that_cannot_fit(run, main, argv, message, capsys):
     before = sorted(p.name for p in run.rglob("*"))
-    argv = argv[:1] + ["--load-dir", str(run)] + argv[1:] if main is export_cli.main else ["--load-dir", str(run), *argv]
+    argv = (argv[:1] + ["--load-dir", str(run)] + argv[1:] if main is export_cli.main
+            else ["--load-dir", str(run), *argv])
     code = main(argv + ["--device", "cpu"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 2 and len(err) == 1 and err[0].startswith("error: ") and message in err[0], err

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import math
-from typing import Tuple
 
 import torch
 from torch import nn
@@ -37,7 +36,7 @@ class ViewAttention(nn.Module):
         nn.init.zeros_(self.out.weight)
         nn.init.zeros_(self.out.bias)
 
-    def forward(self, tokens: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    def forward(self, tokens: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``tokens [S, n, D]`` -> (fused ``[S, n, D]``, attention weights ``[S, H, n, n]``, rows sum to 1)."""
         s, n, _ = tokens.shape
         q, k, v = self.qkv(tokens).view(s, n, 3, self.n_heads, self.head_dim).permute(2, 0, 3, 1, 4)
@@ -47,9 +46,9 @@ class ViewAttention(nn.Module):
         return tokens + self.out(heads), alpha
 
 
-def reference_attention(module: ViewAttention, tokens: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+def reference_attention(module: ViewAttention, tokens: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The same computation written out with loops over samples, heads and views (for tests only)."""
-    s, n, d = tokens.shape
+    s, n, _ = tokens.shape
     h, dh = module.n_heads, module.head_dim
     w, b = module.qkv.weight, module.qkv.bias
     fused = torch.zeros_like(tokens)
@@ -57,7 +56,7 @@ def reference_attention(module: ViewAttention, tokens: torch.Tensor) -> Tuple[to
     for si in range(s):
         concat = torch.zeros(n, h * dh, dtype=tokens.dtype, device=tokens.device)
         for hi in range(h):
-            rows = lambda part: slice(part * h * dh + hi * dh, part * h * dh + (hi + 1) * dh)  # noqa: E731
+            rows = lambda part, hi=hi: slice(part * h * dh + hi * dh, part * h * dh + (hi + 1) * dh)
             q = [w[rows(0)] @ tokens[si, i] + b[rows(0)] for i in range(n)]
             k = [w[rows(1)] @ tokens[si, j] + b[rows(1)] for j in range(n)]
             v = [w[rows(2)] @ tokens[si, j] + b[rows(2)] for j in range(n)]

@@ -6,6 +6,7 @@ starts by rendering exactly what the shared network rendered.
 
 from __future__ import annotations
 
+import itertools
 import math
 
 import torch
@@ -34,7 +35,7 @@ class ViewBranches(nn.Module):
         dims = [feature_dim] + [width] * (n_layers - 1) + [feature_dim]
         self.weights = nn.ParameterList()
         self.biases = nn.ParameterList()
-        for k, (a, b) in enumerate(zip(dims[:-1], dims[1:])):
+        for k, (a, b) in enumerate(itertools.pairwise(dims)):
             bound = 1.0 / math.sqrt(a)
             w = torch.empty(n_views, a, b).uniform_(-bound, bound)
             bias = torch.empty(n_views, 1, b).uniform_(-bound, bound)

@@ -9,7 +9,6 @@ shared surface.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Optional
 
 import cv2
 import numpy as np
@@ -23,8 +22,8 @@ from va_plugin.rays import near_far_from_sphere
 class SilhouetteSupport:
     """Per view the share of foreground pixels whose ray no other silhouette supports."""
 
-    unsupported: List[float]
-    pixels: List[int]
+    unsupported: list[float]
+    pixels: list[int]
     threshold: float
 
     @property
@@ -51,7 +50,7 @@ what clean, consistent renders show)."""
 @torch.no_grad()
 def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: float, samples: int = 192,
                        tolerance_px: int = 0, max_pixels: int = 4096,
-                       threshold: float = DEFAULT_THRESHOLD) -> Optional[SilhouetteSupport]:
+                       threshold: float = DEFAULT_THRESHOLD) -> SilhouetteSupport | None:
     """The silhouette test on ``masks [n, H, W]`` (bool) seen by ``cameras``: up to ``max_pixels`` pixels
     per view spread evenly (deterministic), ``samples`` points per ray inside the sphere of
     ``scene_radius``, other masks dilated by ``tolerance_px``. None with fewer than two views or an
@@ -101,7 +100,7 @@ class ColourCast:
     gains: np.ndarray  # [n, 3]
     points: int  # surface points the fit used (seen by two views)
     seconds: float
-    levels: Optional[np.ndarray] = None  # [n, 3] each view's mean colour where another view sees too
+    levels: np.ndarray | None = None  # [n, 3] each view's mean colour where another view sees too
 
     @property
     def log_gains(self) -> np.ndarray:
@@ -140,7 +139,7 @@ class ColourCast:
 
 
 @torch.no_grad()
-def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: Optional[np.ndarray] = None,
+def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: np.ndarray | None = None,
                 resolution: int = 64, max_gain: float = float("inf")) -> ColourCast:
     """How far apart the views' colours are on the shared surface: the per-view gains of
     :func:`va_plugin.export.fusion.harmonise` on the vertices of a ``resolution``^3 mesh of ``model``
@@ -149,8 +148,8 @@ def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: Optional[np.
     import time
 
     from va_plugin.data.scenes.raycast import smooth_vertex_normals
-    from va_plugin.export.mesh import extract_mesh
     from va_plugin.export.fusion import harmonise
+    from va_plugin.export.mesh import extract_mesh
     from va_plugin.export.views import Views, view_samples
 
     started = time.perf_counter()

@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import cv2
 import numpy as np
@@ -52,7 +51,7 @@ def attention_picture(matrix: np.ndarray, cell: int = 64) -> np.ndarray:
     return canvas
 
 
-def write_attention(field, run_dir: Path) -> Optional[Path]:
+def write_attention(field, run_dir: Path) -> Path | None:
     """``attention.png`` and ``attention.json`` from the field's running average (None before fusion trained)."""
     matrix = field.attention_matrix()
     if matrix is None:
@@ -68,7 +67,7 @@ def write_attention(field, run_dir: Path) -> Optional[Path]:
 
 
 @torch.no_grad()
-def inconsistency_maps(pipeline, scale: float = 0.5, progress: bool = False) -> List[Dict[str, np.ndarray]]:
+def inconsistency_maps(pipeline, scale: float = 0.5, progress: bool = False) -> list[dict[str, np.ndarray]]:
     """Per training view: its (resized) input, its branch render, its canonical render and the map
     ``|branch - canonical|`` (mean over RGB), all at ``scale`` of the input resolution."""
     dm = pipeline.datamanager
@@ -92,7 +91,7 @@ def inconsistency_maps(pipeline, scale: float = 0.5, progress: bool = False) -> 
     return out
 
 
-def injected_error_maps(scene_dir: Path, size: tuple) -> Optional[List[np.ndarray]]:
+def injected_error_maps(scene_dir: Path, size: tuple) -> list[np.ndarray] | None:
     """For a benchmark scene, per training view |input - clean render| (mean over RGB, on white) at
     ``size`` = (width, height); None for other data."""
     scene_dir = Path(scene_dir)
@@ -122,20 +121,20 @@ def injected_error_maps(scene_dir: Path, size: tuple) -> Optional[List[np.ndarra
 
 
 def overlap_scores(predicted: np.ndarray, injected: np.ndarray, threshold: float = ERROR_THRESHOLD
-                   ) -> Dict[str, Optional[float]]:
+                   ) -> dict[str, float | None]:
     """How well an inconsistency map points at the injected errors: ``precision_top10`` (share of its
     top-10% pixels that were perturbed), ``chance`` (share of perturbed pixels) and ``pearson`` (None
     for a constant map)."""
     p, e = predicted.reshape(-1).astype(np.float64), injected.reshape(-1).astype(np.float64)
     perturbed = e > threshold
-    k = max(1, int(round(0.1 * p.size)))
+    k = max(1, round(0.1 * p.size))
     top = np.argpartition(-p, k - 1)[:k]
     pearson = float(np.corrcoef(p, e)[0, 1]) if p.std() > 0 and e.std() > 0 else None  # undefined: flat map
     return {"precision_top10": float(perturbed[top].mean()), "chance": float(perturbed.mean()),
             "pearson": pearson}
 
 
-def write_inconsistency(pipeline, run_dir: Path, scale: float = 0.5, scene_dir: Optional[Path] = None,
+def write_inconsistency(pipeline, run_dir: Path, scale: float = 0.5, scene_dir: Path | None = None,
                         progress: bool = False) -> Path:
     """``inconsistency.png`` (one row per training view: input | own render | canonical render | map)
     and ``inconsistency.json`` (per-view mean of the map, and overlap with injected errors if known)."""
@@ -160,7 +159,7 @@ def write_inconsistency(pipeline, run_dir: Path, scale: float = 0.5, scene_dir: 
     return run_dir / "inconsistency.png"
 
 
-def write_diagnostics(pipeline, run_dir: Path, scale: float = 0.5, progress: bool = False) -> List[Path]:
+def write_diagnostics(pipeline, run_dir: Path, scale: float = 0.5, progress: bool = False) -> list[Path]:
     """Both pictures for a view-adaptive run (nothing for other fields); returns what was written."""
     field = pipeline.model.field
     if not hasattr(field, "attention_matrix"):

@@ -11,8 +11,8 @@ Training view i renders with f_fused,i; novel views, evaluation and mesh colours
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Dict, List, Optional, Type
 
 import torch
 from torch import nn
@@ -20,8 +20,7 @@ from torch import nn
 from va_plugin.adaptive.attention import ViewAttention
 from va_plugin.adaptive.branches import ViewBranches
 from va_plugin.adaptive.losses import attention_entropy, feature_consistency, weighted_mean
-from va_plugin.adaptive.phases import (BRANCHES, FUSION, PRETRAIN,
-                                       diagnostics_callback, phase_callback)
+from va_plugin.adaptive.phases import BRANCHES, FUSION, PRETRAIN, diagnostics_callback, phase_callback
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import Field, FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
@@ -34,7 +33,7 @@ ADAPTIVE_SEED_OFFSET = 7919
 class ViewAdaptiveFieldConfig(FieldConfig):
     """Per-view branches + self-attention fusion around a base field (the paper's Sec. 3)."""
 
-    _target: Type = field(default_factory=lambda: ViewAdaptiveField)
+    _target: type = field(default_factory=lambda: ViewAdaptiveField)
     base: FieldConfig = field(default_factory=SDFFieldConfig)
     """The wrapped field (an SDF field for NeuS, a density field for NGP)."""
     branches: bool = True
@@ -85,7 +84,7 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     def validate(self) -> None:
         if self.fusion and not self.branches:
             raise ConfigError("fusion needs the per-view branches (set branches=true or fusion=false)")
-        if not (0.0 <= self.pretrain_fraction and 0.0 <= self.branch_fraction
+        if not (self.pretrain_fraction >= 0.0 and self.branch_fraction >= 0.0
                 and self.pretrain_fraction + self.branch_fraction <= 1.0):
             raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
                               f"{self.pretrain_fraction} and {self.branch_fraction}")
@@ -176,7 +175,7 @@ class ViewAdaptiveField(Field):
             raise
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
-              weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
+              weights=None, ray_indices=None) -> dict[str, torch.Tensor]:
         """RGB ``[..., 3]`` of samples: training rays (``camera_indices >= 0``) use their view's
         f_fused,i, novel-view rays (-1) f_shared. While fusion trains, the per-sample regularizers
         ``va_entropy`` and ``va_consistency`` (``[...]``) come along, with the attention ``va_attention``
@@ -206,7 +205,7 @@ class ViewAdaptiveField(Field):
         out = {k: v if k.startswith("va_attention") else v.reshape(lead + v.shape[1:]) for k, v in out.items()}
         return with_canonical(out, mode)
 
-    def _mode(self) -> "ColorMode":
+    def _mode(self) -> ColorMode:
         """The switches of this query, read once."""
         cfg = self.config
         return ColorMode(branches=self.branches_active(), fusion=self.fusion_active(), training=self.training,
@@ -214,7 +213,7 @@ class ViewAdaptiveField(Field):
                          fused_samples_per_ray=cfg.fused_samples_per_ray if self.fusion_active() else 0,
                          shared_colour=self.training and cfg.shared_colour_weight > 0)
 
-    def _every_sample(self, flat: torch.Tensor, views: torch.Tensor, mode: "ColorMode") -> Dict[str, torch.Tensor]:
+    def _every_sample(self, flat: torch.Tensor, views: torch.Tensor, mode: ColorMode) -> dict[str, torch.Tensor]:
         """Every sample ``[S, D]`` takes the adaptive path (no rendering weights, or no culling)."""
         out = self._adaptive(flat, views, None, mode)
         if mode.also_canonical or mode.shared_colour:
@@ -225,8 +224,8 @@ class ViewAdaptiveField(Field):
                 out["rgb_shared"] = shared_rgb
         return out
 
-    def _routed(self, flat: torch.Tensor, views: torch.Tensor, weights: torch.Tensor, routes: "SampleRoutes",
-                mode: "ColorMode") -> Dict[str, torch.Tensor]:
+    def _routed(self, flat: torch.Tensor, views: torch.Tensor, weights: torch.Tensor, routes: SampleRoutes,
+                mode: ColorMode) -> dict[str, torch.Tensor]:
         """The shared colour everywhere, overwritten where ``routes`` send a sample down the adaptive path
         (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``)."""
         index = routes.adaptive
@@ -250,8 +249,8 @@ class ViewAdaptiveField(Field):
             out[key] = value.new_zeros(flat.shape[0]).index_copy(0, index, value)
         return out
 
-    def _adaptive(self, flat: torch.Tensor, views: torch.Tensor, weights: Optional[torch.Tensor],
-                  mode: "ColorMode") -> Dict[str, torch.Tensor]:
+    def _adaptive(self, flat: torch.Tensor, views: torch.Tensor, weights: torch.Tensor | None,
+                  mode: ColorMode) -> dict[str, torch.Tensor]:
         """The branch (+ fusion) path on flat features ``[S, D]`` with views ``[S]`` (-1: canonical) and
         their rendering weights ``[S]`` (None: unknown): ``rgb [S, 3]``, and as :meth:`color` says."""
         novel = views < 0
@@ -282,9 +281,9 @@ class ViewAdaptiveField(Field):
         return out
 
     # -- losses and diagnostics -------------------------------------------------------------------
-    def extra_losses(self, outputs: Dict[str, torch.Tensor], batch: Optional[Dict[str, torch.Tensor]] = None,
-                     colour_loss: Optional[Callable[[torch.Tensor, torch.Tensor], torch.Tensor]] = None
-                     ) -> Dict[str, torch.Tensor]:
+    def extra_losses(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor] | None = None,
+                     colour_loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+                     ) -> dict[str, torch.Tensor]:
         """The weighted regularizers of eq. 14, averaged over samples by their rendering weights; the
         attention of the batch (``va_attention``) joins the running attention matrix. With
         ``shared_colour_weight`` and the model's ``colour_loss``, the shared path's render of the batch
@@ -293,7 +292,7 @@ class ViewAdaptiveField(Field):
         weights = outputs.get("weights")
         if weights is not None and "va_evaluated" in outputs:  # only where the regularizers were evaluated
             weights = weights.detach() * outputs["va_evaluated"]
-        losses: Dict[str, torch.Tensor] = {}
+        losses: dict[str, torch.Tensor] = {}
         if "va_entropy" in outputs:
             losses["entropy"] = cfg.entropy_weight * weighted_mean(outputs["va_entropy"], weights)
         if "va_consistency" in outputs:
@@ -305,8 +304,8 @@ class ViewAdaptiveField(Field):
         return losses
 
     @torch.no_grad()
-    def _accumulate_attention(self, alpha: torch.Tensor, sample_weights: Optional[torch.Tensor],
-                              weights: Optional[torch.Tensor]) -> None:
+    def _accumulate_attention(self, alpha: torch.Tensor, sample_weights: torch.Tensor | None,
+                              weights: torch.Tensor | None) -> None:
         """Running sum of the attention ``alpha [A, n, n]`` over training samples, weighted by rendering
         weight (``sample_weights [A]``, else the batch's ``weights`` when they match)."""
         if sample_weights is None and weights is not None and weights.numel() == alpha.shape[0]:
@@ -315,16 +314,16 @@ class ViewAdaptiveField(Field):
         self.attention_sum += (alpha * w[:, None, None]).sum(0)
         self.attention_mass += w.sum()
 
-    def attention_matrix(self) -> Optional[torch.Tensor]:
+    def attention_matrix(self) -> torch.Tensor | None:
         """The n x n attention matrix averaged over surface samples (row i: how view i's feature
         draws on each view j), or None before fusion has trained."""
         if float(self.attention_mass) <= 0:
             return None
         return (self.attention_sum / self.attention_mass).cpu()
 
-    def param_groups(self) -> Dict[str, List[nn.Parameter]]:
+    def param_groups(self) -> dict[str, list[nn.Parameter]]:
         groups = {"fields": list(self.base.parameters())}
-        adaptive: List[nn.Parameter] = []
+        adaptive: list[nn.Parameter] = []
         for module in (self.branches, self.attention):
             if module is not None:
                 adaptive.extend(module.parameters())
@@ -337,7 +336,7 @@ class ViewAdaptiveField(Field):
             callbacks.append(diagnostics_callback(self))
         return callbacks
 
-    def diagnostics(self) -> Dict[str, float]:
+    def diagnostics(self) -> dict[str, float]:
         out = {"phase": float(self.current_phase)}
         if self.branches_active():
             out["adaptive_share"] = round(self.adaptive_share, 4)
@@ -364,7 +363,7 @@ class SampleRoutes:
     """Which flat samples take which colour path (the others keep the shared colour)."""
 
     adaptive: torch.Tensor  # [A] indices of the samples on the adaptive path (fused, in the fusion phase)
-    own_only: Optional[torch.Tensor]  # [B] visible samples on their own view's branch alone, or None
+    own_only: torch.Tensor | None  # [B] visible samples on their own view's branch alone, or None
     evaluated: torch.Tensor  # bool [S]: ``adaptive`` as a mask (where the regularizers are evaluated)
 
     def shares(self, mode: ColorMode) -> tuple:
@@ -375,14 +374,14 @@ class SampleRoutes:
         return (share if self.own_only is None else share + self.own_only.numel() / total), fused
 
 
-def flat_views(camera_indices: Optional[torch.Tensor], n_samples: int, device: torch.device) -> torch.Tensor:
+def flat_views(camera_indices: torch.Tensor | None, n_samples: int, device: torch.device) -> torch.Tensor:
     """The view of each sample ``[S]`` (long; -1: a novel view) from ``camera_indices [...]`` (None: all novel)."""
     if camera_indices is None:
         return torch.full((n_samples,), -1, dtype=torch.long, device=device)
     return camera_indices.reshape(-1).to(device)
 
 
-def route_samples(weights: torch.Tensor, views: torch.Tensor, ray_indices: Optional[torch.Tensor],
+def route_samples(weights: torch.Tensor, views: torch.Tensor, ray_indices: torch.Tensor | None,
                   mode: ColorMode) -> SampleRoutes:
     """Where each sample ``[S]`` goes: training-view samples heavier than ``min_sample_weight`` take the
     adaptive path; with ``fused_samples_per_ray`` k > 0 and known rays, only each ray's k heaviest are
@@ -397,7 +396,7 @@ def route_samples(weights: torch.Tensor, views: torch.Tensor, ray_indices: Optio
                         own_only=None if own_only is None else own_only.nonzero().squeeze(-1), evaluated=active)
 
 
-def with_canonical(out: Dict[str, torch.Tensor], mode: ColorMode) -> Dict[str, torch.Tensor]:
+def with_canonical(out: dict[str, torch.Tensor], mode: ColorMode) -> dict[str, torch.Tensor]:
     """``out`` with ``rgb_canonical`` (= ``rgb``) when the query wants it and the path gave none."""
     if mode.also_canonical and "rgb_canonical" not in out:
         out["rgb_canonical"] = out["rgb"]

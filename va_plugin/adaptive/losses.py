@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Optional
-
 import torch
 
 ALPHA_FLOOR = 1e-8
@@ -22,7 +20,7 @@ def feature_consistency(fused: torch.Tensor) -> torch.Tensor:
     return (centred * centred).sum((-1, -2))
 
 
-def weighted_mean(values: torch.Tensor, weights: Optional[torch.Tensor]) -> torch.Tensor:
+def weighted_mean(values: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
     """Mean of per-sample ``values`` weighted by (detached) rendering ``weights`` of the same shape;
     the plain mean without weights, or when the weights sum to (almost) nothing."""
     if values.numel() == 0:

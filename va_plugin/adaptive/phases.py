@@ -12,7 +12,7 @@ import json
 import math
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING, Dict, List
+from typing import TYPE_CHECKING
 
 import torch
 
@@ -43,7 +43,7 @@ def phase_at(step: int, max_steps: int, pretrain_fraction: float, branch_fractio
 
 @torch.no_grad()
 def view_residuals(pipeline, max_pixels: int = 4096, total_pixels: int = 16384,
-                   foreground_pixels: int = 4096) -> List[Dict[str, float]]:
+                   foreground_pixels: int = 4096) -> list[dict[str, float]]:
     """How well the shared (canonical) field explains each training input: per view, the PSNR over the
     rendered pixels and, with masks, over their foreground.
 
@@ -85,7 +85,7 @@ def view_residuals(pipeline, max_pixels: int = 4096, total_pixels: int = 16384,
     return results
 
 
-def residual_spread_db(residuals: List[Dict[str, float]]) -> float:
+def residual_spread_db(residuals: list[dict[str, float]]) -> float:
     """How far the worst-explained view falls below the best one, in dB: the spread of the per-view
     foreground PSNRs of :func:`view_residuals` (of the whole-image PSNRs when a view has no foreground)."""
     key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
@@ -93,28 +93,27 @@ def residual_spread_db(residuals: List[Dict[str, float]]) -> float:
     return max(values) - min(values)
 
 
-def phase_callback(field: "ViewAdaptiveField") -> TrainingCallback:
+def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
     """The trainer callback that sets the field's phase; it returns the learning-rate factor of the
     shared field's optimizer groups (``shared_lr_scale`` once the branches train)."""
     cfg = field.config
 
-    def switch(step: int, attributes: TrainingCallbackAttributes) -> Dict[str, float]:
+    def switch(step: int, attributes: TrainingCallbackAttributes) -> dict[str, float]:
         wanted = phase_at(step, attributes.horizon, cfg.pretrain_fraction, cfg.branch_fraction)
-        if field.branches is None or bool(field.skipped):
+        if (field.branches is None or bool(field.skipped)
+                or (wanted > PRETRAIN and field.current_phase == PRETRAIN and cfg.skip_consistent_scenes
+                    and _decide_skip(field, attributes, step))):
             wanted = PRETRAIN
-        elif wanted > PRETRAIN and field.current_phase == PRETRAIN and cfg.skip_consistent_scenes:
-            if _decide_skip(field, attributes, step):
-                wanted = PRETRAIN
         if wanted != field.current_phase:
             field.set_phase(wanted)
             attributes.announce(step, f"phase {wanted}: {PHASE_NAMES[wanted]}", phase=wanted)
         factor = cfg.shared_lr_scale if wanted >= BRANCHES else 1.0
-        return {group: factor for group in SHARED_GROUPS}  # the shared field and NeuS's inv_s
+        return dict.fromkeys(SHARED_GROUPS, factor)  # the shared field and NeuS's inv_s
 
     return TrainingCallback(switch, BEFORE_STEP)
 
 
-def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
+def diagnostics_callback(field: ViewAdaptiveField) -> TrainingCallback:
     """After the last step, the attention heat map and the inconsistency maps go to the run folder."""
 
     def write(step: int, attributes: TrainingCallbackAttributes) -> None:
@@ -128,7 +127,7 @@ def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
                                         progress=attributes.progress)
         except Exception as exc:  # pictures must never cost the trained run (its checkpoint comes after)
             warnings.warn(f"the diagnostics pictures failed ({type(exc).__name__}: {exc}); the trained run is "
-                          f"kept: retry with va-export diagnostics --load-dir {run_dir}")
+                          f"kept: retry with va-export diagnostics --load-dir {run_dir}", stacklevel=2)
             return
         if written:
             attributes.announce(step, "diagnostics written: " + ", ".join(Path(p).name for p in written))
@@ -136,7 +135,7 @@ def diagnostics_callback(field: "ViewAdaptiveField") -> TrainingCallback:
     return TrainingCallback(write, AFTER_STEP)
 
 
-def _decide_skip(field: "ViewAdaptiveField", attributes: TrainingCallbackAttributes, step: int) -> bool:
+def _decide_skip(field: ViewAdaptiveField, attributes: TrainingCallbackAttributes, step: int) -> bool:
     """Measure the silhouette support and the colour cast, record them with the per-view residuals (which
     do not vote), and say whether to skip the adaptive phases (when the inputs agree)."""
     residuals = view_residuals(attributes.pipeline)

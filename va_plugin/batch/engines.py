@@ -14,16 +14,17 @@ import os
 import signal
 import threading
 import time
+from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from multiprocessing import get_context
 from queue import Empty
-from typing import Any, Callable, Dict, List, Optional, Sequence
+from typing import Any
 
 from va_plugin.batch.job import ObjectJob, failed_record, run_object
 from va_plugin.errors import ConfigError
 
-OnDone = Callable[[Dict[str, Any]], None]
+OnDone = Callable[[dict[str, Any]], None]
 ENGINES = ("local", "ray")
 PARENT_POLL_SECONDS = 1.0
 
@@ -45,7 +46,7 @@ def _start_worker(parent: int, started) -> None:
 _STARTED = None
 
 
-def _run_in_worker(job: ObjectJob) -> Dict[str, Any]:
+def _run_in_worker(job: ObjectJob) -> dict[str, Any]:
     _STARTED.put(job.name)
     return run_object(job)
 
@@ -56,7 +57,7 @@ def run_local(jobs: Sequence[ObjectJob], workers: int, on_done: OnDone) -> None:
         for job in jobs:
             on_done(run_object(job))
         return
-    remaining: List[ObjectJob] = list(jobs)
+    remaining: list[ObjectJob] = list(jobs)
     while remaining:
         remaining = _run_pool(remaining, workers, on_done)
 
@@ -70,7 +71,7 @@ def _drain(queue) -> set:
             return names
 
 
-def _run_pool(jobs: List[ObjectJob], workers: int, on_done: OnDone) -> List[ObjectJob]:
+def _run_pool(jobs: list[ObjectJob], workers: int, on_done: OnDone) -> list[ObjectJob]:
     """Run ``jobs`` in one pool; the jobs left to run when a worker died (none when all finished)."""
     context = get_context("spawn")
     started = context.Queue()
@@ -118,7 +119,7 @@ def import_ray():
     return ray
 
 
-def run_ray(jobs: Sequence[ObjectJob], on_done: OnDone, address: Optional[str] = None, workers: int = 1,
+def run_ray(jobs: Sequence[ObjectJob], on_done: OnDone, address: str | None = None, workers: int = 1,
             threads: int = 1, gpus: float = 0.0) -> None:
     """One Ray task per job on the cluster at ``address``, or on a local instance started here."""
     ray = import_ray()
@@ -129,7 +130,7 @@ def run_ray(jobs: Sequence[ObjectJob], on_done: OnDone, address: Optional[str] =
         # Ray's default worker niceness (15) starves the jobs on a busy machine
         ray.init(num_cpus=workers * threads, num_gpus=None if gpus else 0,
                  _system_config={"worker_niceness": 0}, **options)
-    pending: Dict[Any, ObjectJob] = {}
+    pending: dict[Any, ObjectJob] = {}
     try:
         task = ray.remote(run_object).options(num_cpus=threads, num_gpus=gpus, max_retries=1)
         pending.update({task.remote(job): job for job in jobs})

@@ -13,7 +13,6 @@ import re
 from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List
 
 from va_plugin.data.dataparsers import FORMATS
 from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES
@@ -35,10 +34,10 @@ def _is_object_folder(path: Path) -> bool:
     return any(fmt.detect(path) for fmt in FORMATS.values())
 
 
-def _search(folder: Path, depth: int) -> List[Path]:
+def _search(folder: Path, depth: int) -> list[Path]:
     if _is_object_folder(folder):
         return [folder]
-    found: List[Path] = []
+    found: list[Path] = []
     for item in sorted(folder.iterdir()):
         if item.name.startswith("."):
             continue
@@ -49,7 +48,7 @@ def _search(folder: Path, depth: int) -> List[Path]:
     return found
 
 
-def _read_list(list_file: Path) -> List[Path]:
+def _read_list(list_file: Path) -> list[Path]:
     try:
         lines = list_file.read_text(encoding="utf-8").splitlines()
     except (UnicodeDecodeError, OSError) as exc:
@@ -67,7 +66,7 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-.") or "object"
 
 
-def _names(paths: List[Path], root: Path) -> List[str]:
+def _names(paths: list[Path], root: Path) -> list[str]:
     """Each path's stem; where stems repeat, the path below ``root`` (or the whole path) joined by '-',
     and a counter where even that repeats."""
     stems = [_slug(p.stem if p.suffix.lower() in IMAGE_SUFFIXES else p.name) for p in paths]
@@ -89,7 +88,7 @@ def _names(paths: List[Path], root: Path) -> List[str]:
     return unique
 
 
-def find_objects(inputs: Path) -> List[BatchObject]:
+def find_objects(inputs: Path) -> list[BatchObject]:
     """The objects of INPUTS (a folder, a list file, or one input), in a stable order."""
     inputs = Path(inputs).expanduser()
     if not inputs.exists():

@@ -11,7 +11,7 @@ import hashlib
 import json
 import os
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any
 
 from va_plugin.bench.store import _finite_or_none
 from va_plugin.errors import ConfigError
@@ -33,11 +33,11 @@ def write_atomic(path: Path, text: str) -> Path:
     return path
 
 
-def settings_fingerprint(settings: Dict[str, Any]) -> str:
+def settings_fingerprint(settings: dict[str, Any]) -> str:
     return hashlib.sha1(json.dumps(settings, sort_keys=True, default=str).encode()).hexdigest()[:16]
 
 
-def _changes(stored: Dict[str, Any], settings: Dict[str, Any]) -> List[str]:
+def _changes(stored: dict[str, Any], settings: dict[str, Any]) -> list[str]:
     """``key: old -> new`` for each setting that differs (one level into nested dicts)."""
     changes = []
     for key in sorted(set(stored) | set(settings)):
@@ -52,7 +52,7 @@ def _changes(stored: Dict[str, Any], settings: Dict[str, Any]) -> List[str]:
 class Manifest:
     """The finished objects of one batch folder."""
 
-    def __init__(self, out: Path, settings: Dict[str, Any], resume: bool) -> None:
+    def __init__(self, out: Path, settings: dict[str, Any], resume: bool) -> None:
         self.out = Path(out)
         self.path = self.out / MANIFEST_FILE
         settings = json.loads(json.dumps(settings, default=str))  # as it reads back from disk
@@ -72,7 +72,7 @@ class Manifest:
         else:
             write_atomic(settings_path, json.dumps({"settings": settings,
                                                     "fingerprint": settings_fingerprint(settings)}, indent=2))
-        self.records: Dict[str, Dict[str, Any]] = {}
+        self.records: dict[str, dict[str, Any]] = {}
         if self.path.is_file():
             for line in self.path.read_text(encoding="utf-8").splitlines():
                 try:
@@ -87,7 +87,7 @@ class Manifest:
         record = self.records.get(name)
         return record is not None and (record.get("status") == "ok" or not retry_failed)
 
-    def add(self, record: Dict[str, Any]) -> None:
+    def add(self, record: dict[str, Any]) -> None:
         """Store one finished object's record and rewrite the manifest."""
         self.records[record["name"]] = record
         text = "".join(json.dumps(_finite_or_none(r), sort_keys=True) + "\n" for r in self.records.values())

@@ -6,8 +6,9 @@ from __future__ import annotations
 import csv
 import io
 import math
+from collections.abc import Sequence
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any
 
 import numpy as np
 
@@ -28,7 +29,7 @@ def _cell(value: Any) -> str:
     return str(value)
 
 
-def summary_rows(records: Sequence[Dict[str, Any]]) -> List[Dict[str, str]]:
+def summary_rows(records: Sequence[dict[str, Any]]) -> list[dict[str, str]]:
     """Each record's summary columns as text, empty where it has no value (no ground truth, failed)."""
     return [{column: _cell(record.get(column)) for column in COLUMNS} for record in records]
 
@@ -37,17 +38,18 @@ def _short(text: str, limit: int = 160) -> str:
     return text if len(text) <= limit else text[:limit - 3] + "..."
 
 
-def _means(records: Sequence[Dict[str, Any]]) -> Dict[str, Optional[float]]:
+def _means(records: Sequence[dict[str, Any]]) -> dict[str, float | None]:
     """The mean of each numeric column over the objects that finished and have it."""
-    means: Dict[str, Optional[float]] = {}
+    means: dict[str, float | None] = {}
     for column in MEAN_COLUMNS:
-        values = [float(r[column]) for r in records if r.get("status") == "ok" and isinstance(r.get(column), (int, float))
+        values = [float(r[column]) for r in records
+                  if r.get("status") == "ok" and isinstance(r.get(column), (int, float))
                   and math.isfinite(float(r[column]))]
         means[column] = float(np.mean(values)) if values else None
     return means
 
 
-def write_summary(out: Path, records: Sequence[Dict[str, Any]], title: str = "va-batch") -> List[Path]:
+def write_summary(out: Path, records: Sequence[dict[str, Any]], title: str = "va-batch") -> list[Path]:
     """``OUT/summary.csv`` and ``OUT/summary.md`` of ``records`` (in the given order)."""
     rows = summary_rows(records)
     text = io.StringIO()
@@ -77,7 +79,7 @@ def _caption(tile: np.ndarray, text: str, failed: bool) -> np.ndarray:
     return np.concatenate([band, tile], axis=0)
 
 
-def contact_sheet(out: Path, records: Sequence[Dict[str, Any]], columns: int = 4) -> Optional[Path]:
+def contact_sheet(out: Path, records: Sequence[dict[str, Any]], columns: int = 4) -> Path | None:
     """``OUT/contact_sheet.png``: each object's thumbnail under its name (a grey tile for one without a
     mesh), ``columns`` objects a row; None when no object has a thumbnail."""
     import cv2

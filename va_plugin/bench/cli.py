@@ -12,10 +12,11 @@ import os
 import shlex
 import sys
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Sequence
+from typing import Any
 
 from va_plugin.bench.parallel import RowTask, run_in_processes
 from va_plugin.bench.presets import BACKBONES, PRESETS, BenchPreset, get_preset
@@ -36,16 +37,16 @@ class Experiment:
     title: str
     description: str
     # (preset, parsed flags, scene sources) -> the rows, in the order they run
-    plan: Callable[[BenchPreset, argparse.Namespace, List[str]], List[RowSpec]]
+    plan: Callable[[BenchPreset, argparse.Namespace, list[str]], list[RowSpec]]
     # (finished rows in plan order, out folder, meta) -> files written (the Markdown report first)
-    report: Callable[[List[Dict[str, Any]], Path, Dict[str, Any]], List[Path]]
-    add_arguments: Optional[Callable[[argparse.ArgumentParser], None]] = None
+    report: Callable[[list[dict[str, Any]], Path, dict[str, Any]], list[Path]]
+    add_arguments: Callable[[argparse.ArgumentParser], None] | None = None
     axis_scenes: bool = False  # default scenes: the preset's ``axis_scenes``
     fixed: Sequence[str] = ()  # scene settings the experiment varies itself ("level", "views"): no flags
     default_backbones: str = "neus,ngp"
 
 
-def comma_list(text: str, kind=str) -> List[Any]:
+def comma_list(text: str, kind=str) -> list[Any]:
     try:
         return [kind(part.strip()) for part in text.split(",") if part.strip()]
     except ValueError:
@@ -97,7 +98,7 @@ def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
 def preset_from_args(args: argparse.Namespace) -> BenchPreset:
     """The named preset with the flags that change it applied."""
     preset = get_preset(args.preset)
-    changes: Dict[str, Any] = {}
+    changes: dict[str, Any] = {}
     if args.scenes is not None:
         names = tuple(comma_list(args.scenes))
         changes.update(scenes=names, axis_scenes=names)
@@ -108,11 +109,11 @@ def preset_from_args(args: argparse.Namespace) -> BenchPreset:
     if args.steps is not None:
         if args.steps < 1:
             raise ConfigError(f"--steps must be at least 1, got {args.steps}")
-        changes["steps"] = {backbone: args.steps for backbone in BACKBONES}
+        changes["steps"] = dict.fromkeys(BACKBONES, args.steps)
     return dataclasses.replace(preset, **changes)
 
 
-def backbones_from_args(args: argparse.Namespace) -> List[str]:
+def backbones_from_args(args: argparse.Namespace) -> list[str]:
     backbones = comma_list(args.backbones)
     unknown = [b for b in backbones if b not in BACKBONES]
     if unknown or not backbones:
@@ -130,7 +131,7 @@ def adaptive_overrides(args: argparse.Namespace) -> tuple:
     return forced + extra
 
 
-def paired_rows(experiment: str, scene, args: argparse.Namespace) -> List[RowSpec]:
+def paired_rows(experiment: str, scene, args: argparse.Namespace) -> list[RowSpec]:
     """Per backbone, the original row then the adaptive row on one scene (adjacent, so that both see about
     the same load on a shared machine)."""
     rows = []
@@ -141,20 +142,20 @@ def paired_rows(experiment: str, scene, args: argparse.Namespace) -> List[RowSpe
 
 
 def paired_axis_rows(experiment: str, preset, args: argparse.Namespace, sources: Sequence[str],
-                     values: Sequence[int], scene_key: str) -> List[RowSpec]:
+                     values: Sequence[int], scene_key: str) -> list[RowSpec]:
     """:func:`paired_rows` on every source at every value of one scene setting (``scene_key``: "level",
     "views"), in the order source, value, backbone."""
     return [row for source in sources for value in values
             for row in paired_rows(experiment, scene_of(source, preset, args.seed, **{scene_key: value}), args)]
 
 
-def axis_values(text: Optional[str], default: Sequence[int]) -> List[int]:
+def axis_values(text: str | None, default: Sequence[int]) -> list[int]:
     """A comma-separated list of integers from a flag, or the preset's values."""
     return comma_list(text, int) if text else list(default)
 
 
 def duration(seconds: float) -> str:
-    seconds = int(round(seconds))
+    seconds = round(seconds)
     hours, rest = divmod(seconds, 3600)
     return f"{hours}h{rest // 60:02d}m" if hours else f"{rest // 60}m{rest % 60:02d}s"
 
@@ -168,7 +169,7 @@ class Progress:
         self.budgets = list(budgets)
         self.jobs = jobs
         self.remaining = set(range(len(budgets)))
-        self.running: Dict[int, float] = {}  # rows under way -> when they started
+        self.running: dict[int, float] = {}  # rows under way -> when they started
         self.steps_done = 0
         self.seconds_spent = 0.0
 
@@ -202,7 +203,7 @@ class Progress:
         return f"[row {index + 1}/{len(self.budgets)} | {duration(self.elapsed())} elapsed, {self.estimate()}]"
 
 
-def describe(result: Dict[str, Any]) -> str:
+def describe(result: dict[str, Any]) -> str:
     parts = [f"PSNR {fmt(result.get('psnr'), 'psnr')}", f"CD {fmt(result.get('cd'), 'cd')}",
              f"IoU {fmt(result.get('iou'), 'iou')}", f"train {result['train_seconds']:.0f} s"]
     if result["adaptive"]:
@@ -212,7 +213,7 @@ def describe(result: Dict[str, Any]) -> str:
     return ", ".join(parts)
 
 
-def _settings(preset: BenchPreset, rows: List[RowSpec]) -> str:
+def _settings(preset: BenchPreset, rows: list[RowSpec]) -> str:
     scenes = ", ".join(dict.fromkeys(r.scene.name for r in rows))
     steps = ", ".join(f"{b} {run_steps(r, preset)}" for b, r in
                       {r.backbone: r for r in rows}.items())
@@ -250,7 +251,7 @@ class ExperimentRun:
         self.rows = experiment.plan(preset, args, sources)
         self.store = ResultStore(self.out, args.resume)
         self.progress = Progress([run_steps(row, preset) for row in self.rows], self.jobs)
-        self.meta: Dict[str, Any] = {
+        self.meta: dict[str, Any] = {
             "experiment": experiment.name, "title": experiment.title, "command": command,
             "date": datetime.now().strftime("%Y-%m-%d %H:%M"), "preset": preset.name,
             "preset_description": preset.description, "settings": _settings(preset, self.rows),
@@ -258,17 +259,17 @@ class ExperimentRun:
         self.meta["machine"]["load_average_start"] = self.meta["machine"].pop("load_average", None)
         if self.jobs > 1:
             self.meta["machine"]["torch_threads"] = self.threads
-        self.results: Dict[str, Dict[str, Any]] = {}  # finished rows by key (run now or taken from the store)
+        self.results: dict[str, dict[str, Any]] = {}  # finished rows by key (run now or taken from the store)
         self.skipped = 0  # rows taken from the store
 
-    def write_reports(self) -> List[Path]:
+    def write_reports(self) -> list[Path]:
         done = [self.results[r.key] for r in self.rows if r.key in self.results]
         self.meta.update(rows_done=len(done), rows_run=len(done) - self.skipped,
                          wall=duration(self.progress.elapsed()))
         self.meta["machine"]["load_average_end"] = machine_info().get("load_average")
         return self.experiment.report(done, self.out, self.meta)
 
-    def prepare(self, index: int, row: RowSpec) -> Optional[RowTask]:
+    def prepare(self, index: int, row: RowSpec) -> RowTask | None:
         """The row's scene (built when missing), config and fingerprint; None when it finished earlier."""
         out, progress = self.out, self.progress
         scene_dir = out / "scenes" / row.scene.folder_name
@@ -294,7 +295,7 @@ class ExperimentRun:
         print(f"{self.progress.prefix(task.index)} {row.scene.name}: {row.label} ({row.method}, "
               f"{task.config.max_steps} steps)", flush=True)
 
-    def finish(self, task: RowTask, result: Dict[str, Any]) -> None:
+    def finish(self, task: RowTask, result: dict[str, Any]) -> None:
         self.store.add(result)
         self.results[task.row.key] = result
         seconds = self.progress.finish(task.index)
@@ -315,7 +316,7 @@ class ExperimentRun:
               "Rerun the same command with --resume to continue.", file=sys.stderr)
         return EXIT_INTERRUPTED
 
-    def run_sequentially(self) -> Optional[int]:
+    def run_sequentially(self) -> int | None:
         """Every row in this process; the exit status when interrupted, else None."""
         for index, row in enumerate(self.rows):
             self.progress.start(index)
@@ -331,7 +332,7 @@ class ExperimentRun:
             self.finish(task, result)
         return None
 
-    def run_in_workers(self) -> Optional[int]:
+    def run_in_workers(self) -> int | None:
         """The rows ``jobs`` at a time in worker processes; the exit status when interrupted, else None."""
         tasks = [task for task in (self.prepare(index, row) for index, row in enumerate(self.rows))
                  if task is not None]
@@ -367,7 +368,7 @@ def run_experiment(experiment: Experiment, args: argparse.Namespace, command: st
     return 0
 
 
-def main(experiment: Experiment, argv: Optional[List[str]] = None, script: Optional[str] = None) -> int:
+def main(experiment: Experiment, argv: list[str] | None = None, script: str | None = None) -> int:
     """Parse the flags and run the experiment (``error: ...`` and exit 2 on bad input, 130 on Ctrl-C)."""
     arguments = sys.argv[1:] if argv is None else list(argv)
     command = " ".join(["python", script or f"benchmarks/run_{experiment.name}.py",

@@ -18,11 +18,12 @@ import time
 import traceback
 import warnings
 from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from multiprocessing import get_context
 from multiprocessing.connection import wait
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Sequence
+from typing import Any
 
 import torch
 
@@ -113,7 +114,7 @@ class _Worker:
         finally:
             signal.pthread_sigmask(signal.SIG_SETMASK, blocked)
         child.close()
-        self.task: Optional[RowTask] = None
+        self.task: RowTask | None = None
 
     def receive(self) -> tuple:
         """The answer to the row in hand; an error naming the process when it ended without one."""
@@ -141,7 +142,7 @@ class _Worker:
 
 
 def run_in_processes(tasks: Sequence[RowTask], jobs: int, threads: int, on_start: Callable[[RowTask], None],
-                     on_done: Callable[[RowTask, Dict[str, Any]], None],
+                     on_done: Callable[[RowTask, dict[str, Any]], None],
                      on_error: Callable[[RowTask], None]) -> None:
     """Run ``tasks`` in up to ``jobs`` processes, calling ``on_start`` when a row is handed out and
     ``on_done`` with each finished row. A row that raised goes to ``on_error``, the others are stopped and
@@ -150,7 +151,7 @@ def run_in_processes(tasks: Sequence[RowTask], jobs: int, threads: int, on_start
         return
     context = get_context("spawn")
     stopping = context.Event()
-    workers: List[_Worker] = []
+    workers: list[_Worker] = []
     waiting = deque(tasks)
 
     def hand_out() -> None:
@@ -161,8 +162,7 @@ def run_in_processes(tasks: Sequence[RowTask], jobs: int, threads: int, on_start
                 worker.conn.send(worker.task)
 
     try:
-        for number in range(min(jobs, len(tasks))):
-            workers.append(_Worker(context, stopping, threads, number + 1))
+        workers.extend(_Worker(context, stopping, threads, number + 1) for number in range(min(jobs, len(tasks))))
         hand_out()
         while any(worker.task is not None for worker in workers):
             busy = {worker.conn: worker for worker in workers if worker.task is not None}
@@ -189,7 +189,7 @@ def run_in_processes(tasks: Sequence[RowTask], jobs: int, threads: int, on_start
             worker.close()
 
 
-def _stop(workers: List[_Worker], on_done: Callable[[RowTask, Dict[str, Any]], None]) -> None:
+def _stop(workers: list[_Worker], on_done: Callable[[RowTask, dict[str, Any]], None]) -> None:
     """Interrupt the running rows and wait up to STOP_SECONDS for them (rows that finish meanwhile are
     kept); a second interrupt stops the waiting (the caller terminates what is left)."""
     busy = {worker.conn: worker for worker in workers if worker.task is not None}

@@ -7,11 +7,10 @@ level-2 scenes; ``gso10`` and ``full`` follow the paper's Sec. 4.1 with each met
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, Optional, Tuple
 
 from va_plugin.errors import ConfigError
 
-BACKBONES: Dict[str, Tuple[str, str]] = {"neus": ("neus", "va-neus"), "ngp": ("ngp", "va-ngp")}
+BACKBONES: dict[str, tuple[str, str]] = {"neus": ("neus", "va-neus"), "ngp": ("ngp", "va-ngp")}
 """backbone -> (original method, view-adaptive method), as registered."""
 
 BACKBONE_TITLES = {"neus": "NeuS", "ngp": "InstantNGP"}
@@ -22,7 +21,7 @@ class EvalSettings:
     """Arguments of :func:`va_plugin.eval.evaluate.evaluate_run` (the evaluation behind ``va-eval``)."""
 
     image_scale: float = 1.0  # held-out views (and their ground truth) at this fraction of the scene's size
-    max_views: Optional[int] = None  # held-out views scored (the first ones; None: all)
+    max_views: int | None = None  # held-out views scored (the first ones; None: all)
     mesh_resolution: int = 128  # marching-cubes grid of the run's mesh
     n_samples: int = 100_000  # surface samples per mesh for Chamfer distance and F-score
 
@@ -31,26 +30,26 @@ class EvalSettings:
 class BenchPreset:
     name: str
     description: str
-    scenes: Tuple[str, ...]  # of run_table1 and run_ablation (names as ``--scenes`` takes them)
-    axis_scenes: Tuple[str, ...]  # of run_views and run_sweep (4 runs per method and scene)
+    scenes: tuple[str, ...]  # of run_table1 and run_ablation (names as ``--scenes`` takes them)
+    axis_scenes: tuple[str, ...]  # of run_views and run_sweep (4 runs per method and scene)
     evaluation: EvalSettings
     resolution: int = 256  # image side of the scenes (the paper's 256)
     scene_mesh_resolution: int = 160  # marching-cubes grid of the procedural objects' ground truth
     level: int = 2  # inconsistency level (2: calibrated to real SyncDreamer outputs)
     views: int = 4  # input views (the paper's 4)
-    method_preset: Optional[str] = None  # registry preset of every method (None: each method's default)
-    steps: Dict[str, int] = field(default_factory=dict)  # step budget per backbone (missing: the method's)
+    method_preset: str | None = None  # registry preset of every method (None: each method's default)
+    steps: dict[str, int] = field(default_factory=dict)  # step budget per backbone (missing: the method's)
     # config overrides per backbone ("*": every backbone), for original and adaptive alike
-    overrides: Dict[str, Tuple[str, ...]] = field(default_factory=dict)
+    overrides: dict[str, tuple[str, ...]] = field(default_factory=dict)
     curve_points: int = 4  # checkpoints evaluated along each run (the last is the row itself)
-    view_counts: Tuple[int, ...] = (4, 8, 12, 16)  # input view counts of run_views (the paper's Fig. 5)
-    levels: Tuple[int, ...] = (0, 1, 2, 3)  # inconsistency levels of run_sweep
+    view_counts: tuple[int, ...] = (4, 8, 12, 16)  # input view counts of run_views (the paper's Fig. 5)
+    levels: tuple[int, ...] = (0, 1, 2, 3)  # inconsistency levels of run_sweep
 
-    def overrides_for(self, backbone: str) -> Tuple[str, ...]:
+    def overrides_for(self, backbone: str) -> tuple[str, ...]:
         return tuple(self.overrides.get("*", ())) + tuple(self.overrides.get(backbone, ()))
 
 
-PRESETS: Dict[str, BenchPreset] = {
+PRESETS: dict[str, BenchPreset] = {
     "smoke": BenchPreset(
         name="smoke",
         description="plumbing check: one 32-px scene, 3 steps per run, tiny evaluation (under 2 minutes)",
@@ -73,7 +72,8 @@ PRESETS: Dict[str, BenchPreset] = {
     "gso10": BenchPreset(
         name="gso10",
         description="the 10 Google Scanned Objects under --data-root, 4 views at 256 px, each method's default "
-                    "budget, every held-out view at full size, the final state only (benchmarks/run_backbone.py; hours)",
+                    "budget, every held-out view at full size, the final state only "
+                    "(benchmarks/run_backbone.py; hours)",
         scenes=("gso",), axis_scenes=("gso",),
         evaluation=EvalSettings(image_scale=1.0, max_views=None, mesh_resolution=128, n_samples=100_000),
         # scoring 12 views at 256 px costs about as much as training: only the final state

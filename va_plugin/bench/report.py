@@ -12,8 +12,9 @@ import math
 import os
 import platform
 from collections import OrderedDict
+from collections.abc import Callable, Iterable, Sequence
 from pathlib import Path
-from typing import Any, Callable, Dict, Iterable, List, Optional, Sequence, Tuple
+from typing import Any
 
 from va_plugin.bench.presets import BACKBONE_TITLES
 from va_plugin.bench.store import _finite_or_none
@@ -32,11 +33,11 @@ LOWER_IS_BETTER = {"lpips", "cd", "train_seconds"}
 
 
 # -- numbers ---------------------------------------------------------------------------------------------
-def finite(values: Iterable[Any]) -> List[float]:
+def finite(values: Iterable[Any]) -> list[float]:
     return [float(v) for v in values if v is not None and isinstance(v, (int, float)) and math.isfinite(v)]
 
 
-def mean_sd(values: Iterable[Any]) -> Tuple[float, float, int]:
+def mean_sd(values: Iterable[Any]) -> tuple[float, float, int]:
     """Mean, sample standard deviation (0 for a single value) and count of the finite values."""
     vals = finite(values)
     if not vals:
@@ -52,7 +53,7 @@ def fmt(value: Any, metric: str, signed: bool = False) -> str:
     return f"{float(value):{'+' if signed else ''}.{DIGITS.get(metric, 3)}f}"
 
 
-def fmt_mean_sd(values: Iterable[Any], metric: str, expected: Optional[int] = None) -> str:
+def fmt_mean_sd(values: Iterable[Any], metric: str, expected: int | None = None) -> str:
     mean, sd, n = mean_sd(values)
     if n == 0:
         return "n/a"
@@ -60,16 +61,16 @@ def fmt_mean_sd(values: Iterable[Any], metric: str, expected: Optional[int] = No
     return text + (f" ({n}/{expected})" if expected is not None and n < expected else "")
 
 
-def group_rows(rows: Sequence[Dict[str, Any]], key: Callable[[Dict[str, Any]], Any]) -> "OrderedDict[Any, list]":
+def group_rows(rows: Sequence[dict[str, Any]], key: Callable[[dict[str, Any]], Any]) -> OrderedDict[Any, list]:
     """Rows grouped by ``key``, groups in order of first appearance."""
-    groups: "OrderedDict[Any, list]" = OrderedDict()
+    groups: OrderedDict[Any, list] = OrderedDict()
     for row in rows:
         groups.setdefault(key(row), []).append(row)
     return groups
 
 
 # -- files -----------------------------------------------------------------------------------------------
-def write_csv(rows: Sequence[Dict[str, Any]], path: Path) -> Path:
+def write_csv(rows: Sequence[dict[str, Any]], path: Path) -> Path:
     columns = FIELDS + EXTRA_FIELDS
     with open(path, "w", newline="", encoding="utf-8") as handle:
         writer = csv.writer(handle)
@@ -87,16 +88,16 @@ def _csv_value(value: Any) -> Any:
     return value
 
 
-def write_json(rows: Sequence[Dict[str, Any]], path: Path, meta: Dict[str, Any]) -> Path:
+def write_json(rows: Sequence[dict[str, Any]], path: Path, meta: dict[str, Any]) -> Path:
     """``{"meta": ..., "rows": [...]}``; each row carries its evaluation settings and its time curve."""
     path.write_text(json.dumps(_finite_or_none({"meta": meta, "rows": list(rows)}), indent=1))
     return path
 
 
-def machine_info() -> Dict[str, Any]:
+def machine_info() -> dict[str, Any]:
     import torch
 
-    info: Dict[str, Any] = {"platform": platform.platform(), "cpus": os.cpu_count(),
+    info: dict[str, Any] = {"platform": platform.platform(), "cpus": os.cpu_count(),
                             "torch": torch.__version__, "torch_threads": torch.get_num_threads(),
                             "cuda": torch.cuda.get_device_name(0) if torch.cuda.is_available() else None}
     if hasattr(os, "getloadavg"):
@@ -111,7 +112,7 @@ def markdown_table(header: Sequence[str], body: Iterable[Sequence[Any]]) -> str:
     return "\n".join(lines)
 
 
-def header_block(title: str, meta: Dict[str, Any], rows: Sequence[Dict[str, Any]]) -> str:
+def header_block(title: str, meta: dict[str, Any], rows: Sequence[dict[str, Any]]) -> str:
     """Title, command, date, machine and settings (the run's and the rows' evaluation) of a report."""
     machine = meta["machine"]
     load = machine.get("load_average_start")
@@ -131,7 +132,7 @@ def header_block(title: str, meta: Dict[str, Any], rows: Sequence[Dict[str, Any]
     return "\n".join(lines)
 
 
-def summary_table(rows: Sequence[Dict[str, Any]], expected: Optional[int] = None) -> str:
+def summary_table(rows: Sequence[dict[str, Any]], expected: int | None = None) -> str:
     """One line per row label (method or variant): mean ± sd over scenes of every metric."""
     body = []
     for label, group in group_rows(rows, lambda r: r["variant"]).items():
@@ -139,11 +140,11 @@ def summary_table(rows: Sequence[Dict[str, Any]], expected: Optional[int] = None
     return markdown_table(["Method", *METRIC_TITLES.values()], body)
 
 
-def paired(rows: Sequence[Dict[str, Any]], key: Callable[[Dict[str, Any]], Any] = lambda r: r["backbone"]
-           ) -> "OrderedDict[Any, List[Tuple[dict, dict]]]":
+def paired(rows: Sequence[dict[str, Any]], key: Callable[[dict[str, Any]], Any] = lambda r: r["backbone"]
+           ) -> OrderedDict[Any, list[tuple[dict, dict]]]:
     """(original, adaptive) row pairs on the same scene, level and views, grouped by ``key``."""
-    pairs: "OrderedDict[Any, List[Tuple[dict, dict]]]" = OrderedDict()
-    for _, group in group_rows(rows, lambda r: (key(r), r["scene"], r["level"], r["views"])).items():
+    pairs: OrderedDict[Any, list[tuple[dict, dict]]] = OrderedDict()
+    for group in group_rows(rows, lambda r: (key(r), r["scene"], r["level"], r["views"])).values():
         originals = [r for r in group if not r["adaptive"]]
         adaptives = [r for r in group if r["adaptive"]]
         if originals and adaptives:
@@ -181,7 +182,7 @@ def fmt_delta(metric: str, value: float) -> str:
     return fmt(value, metric, signed=True)
 
 
-def delta_cell(metric: str, pairs: Sequence[Tuple[dict, dict]]) -> str:
+def delta_cell(metric: str, pairs: Sequence[tuple[dict, dict]]) -> str:
     """Mean ± sd over pairs of the paired delta, and on how many pairs the adaptive row did better."""
     deltas = [metric_delta(metric, o.get(metric), a.get(metric)) for o, a in pairs]
     mean, sd, n = mean_sd(deltas)
@@ -198,7 +199,7 @@ DELTA_TITLES = OrderedDict([("psnr", "ΔPSNR dB"), ("ssim", "ΔSSIM"), ("lpips",
                             ("iou", "ΔIoU"), ("fscore", "ΔF@0.02"), ("train_seconds", "time ratio")])
 
 
-def delta_table(rows: Sequence[Dict[str, Any]], paper: Optional[Dict[str, Dict[str, float]]] = None) -> str:
+def delta_table(rows: Sequence[dict[str, Any]], paper: dict[str, dict[str, float]] | None = None) -> str:
     """Per backbone: adaptive minus original, paired by scene; with the paper's deltas when given
     (``paper[backbone] = {"original": {...}, "adaptive": {...}}`` in the paper's table's units)."""
     body = []
@@ -213,7 +214,7 @@ def delta_table(rows: Sequence[Dict[str, Any]], paper: Optional[Dict[str, Dict[s
     return markdown_table(["Backbone", *DELTA_TITLES.values()], body)
 
 
-def axis_table(rows: Sequence[Dict[str, Any]], axis: str, metric: str, axis_title: str) -> str:
+def axis_table(rows: Sequence[dict[str, Any]], axis: str, metric: str, axis_title: str) -> str:
     """``metric`` (mean ± sd over scenes) per row label and value of ``axis`` (views, level), plus per
     backbone the paired change of the adaptive method at each value."""
     values = sorted({r[axis] for r in rows})
@@ -226,14 +227,14 @@ def axis_table(rows: Sequence[Dict[str, Any]], axis: str, metric: str, axis_titl
     return markdown_table([METRIC_TITLES[metric], *(f"{axis_title} {v}" for v in values)], body)
 
 
-def per_scene_table(rows: Sequence[Dict[str, Any]]) -> str:
+def per_scene_table(rows: Sequence[dict[str, Any]]) -> str:
     body = [[r["scene"], r["level"], r["views"], r["variant"], *(fmt(r.get(m), m) for m in METRIC_TITLES),
              r["steps"], "yes" if r.get("adaptive_ran") else "no"] for r in rows]
     return markdown_table(["scene", "level", "views", "method", *METRIC_TITLES.values(), "steps",
                            "adaptive phases ran"], body)
 
 
-def settings_line(rows: Sequence[Dict[str, Any]]) -> str:
+def settings_line(rows: Sequence[dict[str, Any]]) -> str:
     """Evaluation settings as recorded in the rows (the first row's; all rows of a run share them)."""
     if not rows:
         return "evaluation: no rows yet"
@@ -248,8 +249,8 @@ def settings_line(rows: Sequence[Dict[str, Any]]) -> str:
     return "evaluation: " + "; ".join(parts)
 
 
-def report_sections(title: str, meta: Dict[str, Any], rows: Sequence[Dict[str, Any]], body: Sequence[str],
-                    image: Tuple[str, str], with_summary: bool = False) -> List[str]:
+def report_sections(title: str, meta: dict[str, Any], rows: Sequence[dict[str, Any]], body: Sequence[str],
+                    image: tuple[str, str], with_summary: bool = False) -> list[str]:
     """A report's Markdown sections: the header, (the mean ± sd table,) ``body``, the per-scene rows and
     the plot (``image``: file name, caption)."""
     sections = [header_block(title, meta, rows)]
@@ -259,8 +260,8 @@ def report_sections(title: str, meta: Dict[str, Any], rows: Sequence[Dict[str, A
     return sections + list(body) + ["## Per scene", per_scene_table(rows), f"![{image[1]}]({image[0]})"]
 
 
-def write_outputs(rows: Sequence[Dict[str, Any]], out: Path, name: str, meta: Dict[str, Any], sections: Sequence[str],
-                  plots: Dict[str, Callable[[Path], Optional[Path]]]) -> List[Path]:
+def write_outputs(rows: Sequence[dict[str, Any]], out: Path, name: str, meta: dict[str, Any], sections: Sequence[str],
+                  plots: dict[str, Callable[[Path], Path | None]]) -> list[Path]:
     """``OUT/<name>.md`` (the sections), ``.csv``, ``.json`` and the plots (file name -> writer)."""
     md = out / f"{name}.md"
     md.write_text("\n\n".join(sections) + "\n")
@@ -289,7 +290,7 @@ def _pyplot():
 COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf")
 
 
-def plot_time_curves(rows: Sequence[Dict[str, Any]], path: Path, title: str) -> Optional[Path]:
+def plot_time_curves(rows: Sequence[dict[str, Any]], path: Path, title: str) -> Path | None:
     """CD and PSNR against training seconds at the checkpoints along each run: a thin line per run
     (scene), a thick one per method through the mean over scenes of each checkpoint."""
     plt = _pyplot()
@@ -316,8 +317,8 @@ def plot_time_curves(rows: Sequence[Dict[str, Any]], path: Path, title: str) -> 
     return _save(plt, fig, path, title)
 
 
-def plot_against(rows: Sequence[Dict[str, Any]], x_key: str, metrics: Sequence[str], path: Path, title: str,
-                 xlabel: str, fits: bool = False) -> Optional[Path]:
+def plot_against(rows: Sequence[dict[str, Any]], x_key: str, metrics: Sequence[str], path: Path, title: str,
+                 xlabel: str, fits: bool = False) -> Path | None:
     """``metrics`` against ``x_key``: per method the mean over scenes at each x (error bars: sd), or,
     with ``fits``, every row as a point plus its method's least-squares line."""
     plt = _pyplot()
@@ -345,7 +346,7 @@ def plot_against(rows: Sequence[Dict[str, Any]], x_key: str, metrics: Sequence[s
     return _save(plt, fig, path, title)
 
 
-def plot_stacked_bars(parts: Dict[str, Dict[str, float]], path: Path, title: str, xlabel: str) -> Optional[Path]:
+def plot_stacked_bars(parts: dict[str, dict[str, float]], path: Path, title: str, xlabel: str) -> Path | None:
     """A horizontal bar per label (``parts``: label -> {part: value}), split into its parts, which have the
     same colour in every bar (the parts of the first label set the order)."""
     plt = _pyplot()
@@ -368,7 +369,7 @@ def plot_stacked_bars(parts: Dict[str, Dict[str, float]], path: Path, title: str
     return _save(plt, fig, path, bbox_inches="tight")
 
 
-def _save(plt, fig, path: Path, title: Optional[str] = None, **savefig: Any) -> Path:
+def _save(plt, fig, path: Path, title: str | None = None, **savefig: Any) -> Path:
     """Finish a figure: its title, tight layout, written to ``path`` at 110 dpi, closed."""
     if title is not None:
         fig.suptitle(title, fontsize=10)
@@ -382,7 +383,7 @@ def _nan(value: Any) -> float:
     return float("nan") if value is None else float(value)
 
 
-def linear_fit(xs: Sequence[Any], ys: Sequence[Any]) -> Optional[Tuple[float, float, float]]:
+def linear_fit(xs: Sequence[Any], ys: Sequence[Any]) -> tuple[float, float, float] | None:
     """Least-squares line through the finite (x, y) pairs: (slope, intercept, Pearson r); None when
     fewer than two distinct x values."""
     points = [(float(x), float(y)) for x, y in zip(xs, ys) if len(finite([x, y])) == 2]

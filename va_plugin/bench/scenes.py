@@ -11,9 +11,9 @@ import json
 import math
 import re
 import shutil
+from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Iterable, List, Optional, Sequence, Tuple
 
 from va_plugin.data.scenes.inconsistency import KINDS
 from va_plugin.errors import ConfigError, DataError
@@ -31,7 +31,7 @@ class SceneSpec:
     resolution: int = 256
     seed: int = 42
     mesh_resolution: int = 160
-    kinds: Tuple[str, ...] = KINDS  # the inconsistency kinds injected (canonical order)
+    kinds: tuple[str, ...] = KINDS  # the inconsistency kinds injected (canonical order)
 
     @property
     def kinds_suffix(self) -> str:
@@ -58,13 +58,13 @@ class SceneSpec:
         return f"{slug}-l{self.level}-v{self.views}-r{self.resolution}-s{self.seed}"
 
 
-def expand_scene_names(names: Iterable[str], data_root: Optional[Path]) -> List[str]:
+def expand_scene_names(names: Iterable[str], data_root: Path | None) -> list[str]:
     """Scene names -> builder sources (``procedural:NAME``, ``gso:NAME``, ``mesh:PATH``), groups expanded,
     duplicates dropped. The ``gso`` group is empty (with a note on stdout) when ``data_root`` holds none."""
     from va_plugin.data.scenes import gso, list_objects
 
     procedural = [name for name, _ in list_objects()]
-    sources: List[str] = []
+    sources: list[str] = []
     for raw in names:
         name = raw.strip()
         if not name:
@@ -93,7 +93,7 @@ def expand_scene_names(names: Iterable[str], data_root: Optional[Path]) -> List[
     return list(dict.fromkeys(sources))
 
 
-def ensure_scene(spec: SceneSpec, cache: Path, data_root: Optional[Path]) -> Path:
+def ensure_scene(spec: SceneSpec, cache: Path, data_root: Path | None) -> Path:
     """The scene's folder in ``cache``, built first when it is not there yet."""
     from va_plugin.data.scenes import build_scene
 

@@ -10,17 +10,17 @@ import json
 import math
 import os
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
 from va_plugin.errors import ConfigError
 
 ROWS_FILE = "rows.jsonl"
 
 
-def read_json_lines(path: Path) -> Tuple[List[Any], int]:
+def read_json_lines(path: Path) -> tuple[list[Any], int]:
     """Every whole JSON line of ``path`` in order, and how many lines were skipped as not whole JSON (a line
     cut short by a crash); blank lines are neither."""
-    records: List[Any] = []
+    records: list[Any] = []
     skipped = 0
     for line in Path(path).read_text().splitlines():
         if not line.strip():
@@ -43,7 +43,7 @@ def _finite_or_none(value: Any) -> Any:
     return value
 
 
-def _nan_for_none(row: Dict[str, Any]) -> Dict[str, Any]:
+def _nan_for_none(row: dict[str, Any]) -> dict[str, Any]:
     return {k: (float("nan") if v is None else v) for k, v in row.items()}
 
 
@@ -52,7 +52,7 @@ class ResultStore:
 
     def __init__(self, out: Path, resume: bool) -> None:
         self.path = Path(out) / ROWS_FILE
-        self.rows: Dict[str, Dict[str, Any]] = {}
+        self.rows: dict[str, dict[str, Any]] = {}
         if self.path.is_file() and self.path.stat().st_size > 0:
             if not resume:
                 raise ConfigError(f"{out} already holds benchmark rows ({ROWS_FILE}); pass --resume to skip "
@@ -61,12 +61,12 @@ class ResultStore:
                 if isinstance(row, dict) and "key" in row:
                     self.rows[row["key"]] = _nan_for_none(row)
 
-    def finished(self, key: str, fingerprint: str) -> Optional[Dict[str, Any]]:
+    def finished(self, key: str, fingerprint: str) -> dict[str, Any] | None:
         """The stored row of ``key`` when it was run with the same settings, else None."""
         row = self.rows.get(key)
         return row if row is not None and row.get("fingerprint") == fingerprint else None
 
-    def add(self, row: Dict[str, Any]) -> None:
+    def add(self, row: dict[str, Any]) -> None:
         self.path.parent.mkdir(parents=True, exist_ok=True)
         with open(self.path, "a", encoding="utf-8") as handle:
             handle.write(json.dumps(_finite_or_none(row)) + "\n")

@@ -5,7 +5,6 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import List
 
 import torch
 
@@ -47,14 +46,14 @@ def check_object_in_bound(outputs: DataparserOutputs) -> None:
                             "pipeline.datamanager.dataparser.scene_radius=R) or check the camera poses")
 
 
-def border_foreground(masks: torch.Tensor) -> List[float]:
+def border_foreground(masks: torch.Tensor) -> list[float]:
     """Per view, the share of the image's outermost pixels (all four edges) that are foreground."""
     fg = masks[..., 0] > 0.5  # [n, H, W]
     edges = torch.cat([fg[:, 0, :], fg[:, -1, :], fg[:, 1:-1, 0], fg[:, 1:-1, -1]], dim=1)
     return edges.float().mean(dim=1).tolist()
 
 
-def warn_object_cut_by_frame(outputs: DataparserOutputs) -> List[float]:
+def warn_object_cut_by_frame(outputs: DataparserOutputs) -> list[float]:
     """Warn when the frame cuts the object off in some training view (foreground on more than 1% of
     the image border: unsupervised surface). Returns the per-view shares (empty without masks)."""
     if outputs.masks is None:
@@ -65,5 +64,5 @@ def warn_object_cut_by_frame(outputs: DataparserOutputs) -> List[float]:
         warnings.warn(f"the image frame cuts the object off in training view(s) {cut} (up to "
                       f"{max(shares):.0%} of a view's border is foreground): what lies outside every frame is "
                       "seen by no view, so the surface there is a guess; inputs with a margin around the object "
-                      "avoid this")
+                      "avoid this", stacklevel=2)
     return shares

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Dict, Iterator, Optional, Tuple, Type
 
 import torch
 
@@ -23,7 +23,7 @@ MASK_PICTURE = "masks.png"
 class DataManagerConfig(InstantiateConfig):
     """Loads the training and test views and samples training rays."""
 
-    _target: Type = field(default_factory=lambda: DataManager)
+    _target: type = field(default_factory=lambda: DataManager)
     dataparser: DataParserConfig = field(default_factory=TransformsDataParserConfig)
     """How to read the scene."""
     rays_per_batch: int = 512
@@ -37,7 +37,8 @@ class DataManagerConfig(InstantiateConfig):
 class DataManager:
     """Holds the images on the device and draws random training rays with their view indices."""
 
-    def __init__(self, config: DataManagerConfig, device: torch.device = torch.device("cpu")) -> None:
+    def __init__(self, config: DataManagerConfig, device: torch.device | None = None) -> None:
+        device = torch.device("cpu") if device is None else device
         if not 0.0 <= config.foreground_fraction <= 1.0:
             raise DataError(f"foreground_fraction must be in [0, 1], got {config.foreground_fraction}")
         if config.rays_per_batch < 1:
@@ -46,7 +47,7 @@ class DataManager:
         self.device = device
         parser = config.dataparser.setup()
         self.train = parser.get_outputs("train")
-        self.test: Optional[DataparserOutputs] = parser.get_outputs("test")
+        self.test: DataparserOutputs | None = parser.get_outputs("test")
         self.cameras = self.train.cameras.to(device)
         self.images = self.train.images.to(device)
         self.masks = None if self.train.masks is None else self.train.masks.to(device)
@@ -69,10 +70,10 @@ class DataManager:
         return self.train.scene_radius
 
     @property
-    def background(self) -> Tuple[float, float, float]:
+    def background(self) -> tuple[float, float, float]:
         return self.train.background
 
-    def _foreground_pixels(self) -> Optional[torch.Tensor]:
+    def _foreground_pixels(self) -> torch.Tensor | None:
         """Flat indices ``[m]`` of pixels whose mask is above one half, or None without masks."""
         if self.masks is None:
             return None
@@ -85,14 +86,14 @@ class DataManager:
         """Flat pixel indices ``[rays_per_batch]``: ``foreground_fraction`` of them on the mask, the rest anywhere."""
         n = self.config.rays_per_batch
         total = self.images.shape[0] * self._height * self._width
-        n_fg = int(round(n * self.config.foreground_fraction)) if self._foreground is not None else 0
+        n_fg = round(n * self.config.foreground_fraction) if self._foreground is not None else 0
         uniform = torch.randint(0, total, (n - n_fg,), generator=self.generator)
         if n_fg == 0:
             return uniform
         pick = torch.randint(0, self._foreground.numel(), (n_fg,), generator=self.generator)
         return torch.cat([self._foreground[pick], uniform])
 
-    def next_train(self, step: int) -> Tuple[RayBundle, Dict[str, torch.Tensor]]:
+    def next_train(self, step: int) -> tuple[RayBundle, dict[str, torch.Tensor]]:
         """A random batch of training rays and their targets (``rgb [n, 3]``, ``mask [n, 1]``, and
         ``normal [n, 3]`` when the input has normal maps), with ``pixel [n, 3]`` (view, row, column)."""
         flat = self._sample_flat_indices().to(self.device)
@@ -107,7 +108,7 @@ class DataManager:
             batch["normal"] = self.normals[views, rows, cols]
         return RayBundle(origins, directions, views), batch
 
-    def image_rays(self, outputs: DataparserOutputs, index: int, camera_index: Optional[int] = None
+    def image_rays(self, outputs: DataparserOutputs, index: int, camera_index: int | None = None
                    ) -> RayBundle:
         """Every ray of one view of ``outputs``, row-major; ``camera_index`` labels them (-1: novel)."""
         cameras = outputs.cameras.to(self.device)
@@ -116,7 +117,7 @@ class DataManager:
         label = index if camera_index is None else camera_index
         return RayBundle(origins, directions, torch.full_like(views, label))
 
-    def eval_views(self) -> Iterator[Tuple[int, RayBundle, torch.Tensor, Optional[torch.Tensor]]]:
+    def eval_views(self) -> Iterator[tuple[int, RayBundle, torch.Tensor, torch.Tensor | None]]:
         """The held-out views as (index, rays, image ``[H, W, 3]``, mask or None); novel-view rays."""
         if self.test is None:
             return
@@ -124,15 +125,15 @@ class DataManager:
             mask = None if self.test.masks is None else self.test.masks[i]
             yield i, self.image_rays(self.test, i, camera_index=-1), self.test.images[i], mask
 
-    def save_mask_picture(self, run_dir: Path) -> Optional[Path]:
+    def save_mask_picture(self, run_dir: Path) -> Path | None:
         """Write ``RUN/masks.png`` (training views above their masks) when the dataparser derived the masks
         from the inputs (generator outputs), so a user can check them; None otherwise."""
         if self.train.masks is None or "mask_source" not in self.train.metadata:
             return None
         return write_mask_picture(Path(run_dir) / MASK_PICTURE, self.train.images.numpy(), self.train.masks.numpy())
 
-    def state_dict(self) -> Dict[str, torch.Tensor]:
+    def state_dict(self) -> dict[str, torch.Tensor]:
         return {"generator": self.generator.get_state()}
 
-    def load_state_dict(self, state: Dict[str, torch.Tensor]) -> None:
+    def load_state_dict(self, state: dict[str, torch.Tensor]) -> None:
         self.generator.set_state(state["generator"])

@@ -7,9 +7,9 @@ drops specks and fills small enclosed holes (large ones, like a mug's handle, st
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import List, Optional, Sequence
 
 import cv2
 import numpy as np
@@ -60,7 +60,7 @@ def _remove_specks(mask: np.ndarray, min_share: float) -> np.ndarray:
 
 
 def _fill_small_holes(mask: np.ndarray, max_share: float) -> np.ndarray:
-    count, labels, stats, _ = cv2.connectedComponentsWithStats((~mask).astype(np.uint8), connectivity=4)
+    _count, labels, stats, _ = cv2.connectedComponentsWithStats((~mask).astype(np.uint8), connectivity=4)
     height, width = mask.shape
     x, y, w, h, area = (stats[:, i] for i in range(5))
     enclosed = (x > 0) & (y > 0) & (x + w < width) & (y + h < height)
@@ -69,7 +69,7 @@ def _fill_small_holes(mask: np.ndarray, max_share: float) -> np.ndarray:
     return mask | fill[labels]
 
 
-def colour_key_mask(image: np.ndarray, key: Optional[ColourKey] = None, where: str = "image") -> np.ndarray:
+def colour_key_mask(image: np.ndarray, key: ColourKey | None = None, where: str = "image") -> np.ndarray:
     """Foreground mask ``[H, W, 1]`` (0 or 1, float32) of an RGB image ``[H, W, 3]`` on a flat background;
     DataError when the border has no dominant colour, or nothing stands out from it."""
     key = key or ColourKey()
@@ -130,7 +130,7 @@ def write_mask_picture(path: Path, images: np.ndarray, masks: np.ndarray) -> Pat
     return Path(path)
 
 
-def check_masks(masks: List[np.ndarray], names: Sequence[str], key: ColourKey) -> None:
+def check_masks(masks: list[np.ndarray], names: Sequence[str], key: ColourKey) -> None:
     """Refuse masks (user-supplied or alpha) that leave a view with no foreground."""
     for mask, name in zip(masks, names):
         if mask.mean() < key.min_foreground:

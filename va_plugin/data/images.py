@@ -3,9 +3,9 @@
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
-from typing import Iterator, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -32,7 +32,7 @@ def native_stderr_silenced() -> Iterator[None]:
         os.close(devnull)
 
 
-def decode_image(raw: np.ndarray, flags: int = cv2.IMREAD_UNCHANGED) -> Optional[np.ndarray]:
+def decode_image(raw: np.ndarray, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray | None:
     """``cv2.imdecode`` of the bytes of a file, None for a corrupt, truncated or non-image file, quietly."""
     if raw.size == 0:
         return None
@@ -83,7 +83,7 @@ def write_image(path: Path, image: np.ndarray) -> None:
         raise DataError(f"cannot write image: {path}")
 
 
-def split_alpha(image: np.ndarray, background: Sequence[float]) -> Tuple[np.ndarray, Optional[np.ndarray]]:
+def split_alpha(image: np.ndarray, background: Sequence[float]) -> tuple[np.ndarray, np.ndarray | None]:
     """Composite an RGBA image on ``background``: RGB ``[H, W, 3]`` and mask ``[H, W, 1]`` (an RGB image
     comes back as it is, with no mask)."""
     if image.shape[2] == 3:

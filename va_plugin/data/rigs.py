@@ -19,7 +19,7 @@ axes are OpenCV's (see :mod:`va_plugin.cameras`).
 from __future__ import annotations
 
 import math
-from typing import Dict, List, Sequence, Tuple
+from collections.abc import Sequence
 
 import torch
 
@@ -34,14 +34,14 @@ RIG_ELEVATION_DEG = 30.0
 
 # Zero123++: version -> (elevations of the six views, vertical FOV in degrees)
 ZERO123PP_AZIMUTHS = (30.0, 90.0, 150.0, 210.0, 270.0, 330.0)
-ZERO123PP_RIGS: Dict[str, Tuple[Tuple[float, ...], float]] = {
+ZERO123PP_RIGS: dict[str, tuple[tuple[float, ...], float]] = {
     "v1.1": ((30.0, -20.0, 30.0, -20.0, 30.0, -20.0), math.degrees(2.0 * math.atan(16.0 / 35.0))),
     "v1.2": ((20.0, -10.0, 20.0, -10.0, 20.0, -10.0), 30.0),
 }
 ZERO123PP_RADIUS = 2.0  # InstantMesh: 4.0 for objects in [-1, 1]^3; halved for our unit box
 
 # Wonder3D
-WONDER3D_VIEWS: Tuple[Tuple[str, float], ...] = (
+WONDER3D_VIEWS: tuple[tuple[str, float], ...] = (
     ("front", 0.0), ("front_right", 45.0), ("right", 90.0), ("back", 180.0), ("left", -90.0), ("front_left", -45.0))
 WONDER3D_ORTHO_SCALE = 1.35
 WONDER3D_DISTANCE = 2.0  # any distance outside the object works for an orthographic camera
@@ -80,7 +80,7 @@ def syncdreamer_rig(resolution: int = 256, elevation_deg: float = RIG_ELEVATION_
                          pixel_offset=pixel_offset)
 
 
-def input_view_ids(n_views: int) -> List[int]:
+def input_view_ids(n_views: int) -> list[int]:
     """SyncDreamer rig indices of ``n_views`` inputs uniform in azimuth from 0 (4 -> 0, 4, 8, 12;
     12 -> 0, 1, 3, 4, 5, 7, ...: as evenly as the rig allows)."""
     if not isinstance(n_views, int) or n_views < 1 or n_views > RIG_VIEWS:

@@ -9,7 +9,6 @@ with wrong ones (mirrored azimuths, wrong elevation) the silhouettes carve each 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import List, Tuple
 
 import cv2
 import numpy as np
@@ -25,15 +24,15 @@ class Hull:
 
     points: torch.Tensor  # [m, 3]
     voxel: float
-    silhouette_iou: List[float]
+    silhouette_iou: list[float]
 
     @property
-    def bounds(self) -> Tuple[torch.Tensor, torch.Tensor]:
+    def bounds(self) -> tuple[torch.Tensor, torch.Tensor]:
         """Lower and upper corners ``[3]`` of the occupied voxels' box (voxel extent included)."""
         half = self.voxel / 2.0
         return self.points.min(0).values - half, self.points.max(0).values + half
 
-    def moved(self, centre: torch.Tensor, scale: float) -> "Hull":
+    def moved(self, centre: torch.Tensor, scale: float) -> Hull:
         """The same hull in a world moved by ``-centre`` and scaled by ``scale`` (silhouettes unchanged)."""
         return Hull((self.points - centre) * scale, self.voxel * scale, list(self.silhouette_iou))
 
@@ -50,7 +49,7 @@ def _inside_all(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor) -> 
     return keep
 
 
-def _grid(lower: torch.Tensor, upper: torch.Tensor, resolution: int) -> Tuple[torch.Tensor, float]:
+def _grid(lower: torch.Tensor, upper: torch.Tensor, resolution: int) -> tuple[torch.Tensor, float]:
     voxel = float((upper - lower).max()) / resolution
     axes = [torch.arange(lower[i] + voxel / 2, upper[i], voxel) for i in range(3)]
     points = torch.stack(torch.meshgrid(*axes, indexing="ij"), -1).reshape(-1, 3)
@@ -90,7 +89,7 @@ def _visual_hull(cameras: Cameras, masks: torch.Tensor, resolution: int) -> Hull
     return Hull(occupied, voxel, silhouette_agreement(cameras, masks, occupied, voxel))
 
 
-def silhouette_agreement(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor, voxel: float) -> List[float]:
+def silhouette_agreement(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor, voxel: float) -> list[float]:
     """IoU per view between each mask and the projection of the hull's voxels (voxel centres dilated by
     the typical footprint of one voxel in that view)."""
     scores = []
@@ -111,7 +110,7 @@ def silhouette_agreement(cameras: Cameras, masks: torch.Tensor, points: torch.Te
     return scores
 
 
-def unit_box_transform(lower: torch.Tensor, upper: torch.Tensor, side: float = 1.0) -> Tuple[torch.Tensor, float]:
+def unit_box_transform(lower: torch.Tensor, upper: torch.Tensor, side: float = 1.0) -> tuple[torch.Tensor, float]:
     """Centre and scale that take the box ``[lower, upper]`` to a box at the origin whose longest side is
     ``side`` (the unit box the models are tuned for): ``x' = (x - centre) * scale``."""
     return (lower + upper) / 2.0, side / float((upper - lower).max())

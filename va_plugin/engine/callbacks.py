@@ -5,14 +5,15 @@ learning-rate factors it wants, by optimizer group."""
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any, Callable, Dict, Optional
+from typing import Any
 
 BEFORE_STEP = "before_step"
 AFTER_STEP = "after_step"
 
-LearningRateFactors = Optional[Dict[str, float]]
+LearningRateFactors = dict[str, float] | None
 """What a callback returns: ``{optimizer group: learning-rate factor}`` (kept until changed), or None."""
 
 
@@ -25,7 +26,7 @@ class TrainingCallbackAttributes:
     run_dir: Path  # the run folder (for files a callback writes)
     progress: bool  # whether the run shows progress (and so may print)
     announce: Callable[..., None]  # ``announce(step, message, **fields)``: a console line and a log record
-    schedule_steps: Optional[int] = None  # where the run's schedules end; None: ``max_steps``
+    schedule_steps: int | None = None  # where the run's schedules end; None: ``max_steps``
 
     @property
     def horizon(self) -> int:

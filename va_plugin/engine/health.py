@@ -20,7 +20,7 @@ import copy
 import math
 import warnings
 from dataclasses import dataclass
-from typing import Any, Dict, Optional
+from typing import Any
 
 import torch
 
@@ -101,12 +101,12 @@ def all_finite(tensors) -> bool:
 class TrainingGuard:
     """The health state of one run; see the module docstring. Its state goes into checkpoints."""
 
-    def __init__(self, config: HealthConfig, inv_s_start: Optional[float] = None, grace_steps: int = 0) -> None:
+    def __init__(self, config: HealthConfig, inv_s_start: float | None = None, grace_steps: int = 0) -> None:
         """``grace_steps``: steps (the warm-up) during which a fall of inv_s is not reported."""
         config.validate()
         self.grace_steps = max(int(grace_steps), 0)
         self.config = config
-        self.levels: Dict[str, float] = {}  # running level of |term| over accepted steps, per loss term
+        self.levels: dict[str, float] = {}  # running level of |term| over accepted steps, per loss term
         self.lr_scale = 1.0
         self.bad_steps = 0
         self.restores = 0
@@ -116,12 +116,12 @@ class TrainingGuard:
         self.inv_s_now = inv_s_start
         self.inv_s_below_start = False
         self._warned: set = set()
-        self._snapshot: Optional[Dict[str, Any]] = None
+        self._snapshot: dict[str, Any] | None = None
         self.reason = ""  # what was wrong with the last bad step
 
     # -- the verdict on a step ------------------------------------------------------------------------
     @timed("health")
-    def check_loss(self, loss: torch.Tensor, terms: Dict[str, torch.Tensor]) -> str:
+    def check_loss(self, loss: torch.Tensor, terms: dict[str, torch.Tensor]) -> str:
         """OK, SKIP (non-finite) or RESTORE (blow-up) for a step's loss and its terms, before backward.
         Each term is judged against its own running level; a new term sets its level."""
         if not math.isfinite(float(loss.detach())):
@@ -145,7 +145,7 @@ class TrainingGuard:
         return self._bad("non-finite gradient")
 
     @timed("health")
-    def check_parameters(self, parameters, inv_s: Optional[float] = None) -> str:
+    def check_parameters(self, parameters, inv_s: float | None = None) -> str:
         """OK or RESTORE after the optimizer update (non-finite parameters, or ``inv_s`` collapsed or saturated)."""
         if not all_finite(p.detach() for p in parameters):
             self.bad_steps += 1
@@ -178,7 +178,7 @@ class TrainingGuard:
         return SKIP
 
     @timed("health")
-    def accept(self, terms: Dict[str, torch.Tensor]) -> None:
+    def accept(self, terms: dict[str, torch.Tensor]) -> None:
         """A step whose update was applied: its loss terms feed their running levels."""
         for name, term in terms.items():
             value, level = abs(float(term.detach())), self.levels.get(name)
@@ -220,7 +220,7 @@ class TrainingGuard:
                                   "restores are counted in metrics.jsonl as restores)")
 
     # -- divergence signs and reporting -----------------------------------------------------------
-    def observe(self, record: Dict[str, Any]) -> None:
+    def observe(self, record: dict[str, Any]) -> None:
         """Add the health fields to a log record; warn once when inv_s falls below its start."""
         inv_s = record.get("inv_s")
         if inv_s is not None and self.inv_s_start is not None:
@@ -239,7 +239,7 @@ class TrainingGuard:
             self._warned.add(kind)
             warnings.warn(message, stacklevel=3)
 
-    def summary(self) -> Optional[str]:
+    def summary(self) -> str | None:
         """One line on what went wrong during the run, or None for a clean run."""
         parts = []
         if self.bad_steps:
@@ -254,13 +254,13 @@ class TrainingGuard:
                          f"{self.inv_s_peak:.4g} (the surface thinned out: check the mesh)")
         return "; ".join(parts) if parts else None
 
-    def state_dict(self) -> Dict[str, Any]:
+    def state_dict(self) -> dict[str, Any]:
         return {"levels": dict(self.levels), "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
                 "restores": self.restores, "skips_in_a_row": self.skips_in_a_row, "inv_s_start": self.inv_s_start,
                 "inv_s_below_start": self.inv_s_below_start, "inv_s_peak": self.inv_s_peak,
                 "inv_s_now": self.inv_s_now, "warned": sorted(self._warned)}
 
-    def load_state_dict(self, state: Dict[str, Any]) -> None:
+    def load_state_dict(self, state: dict[str, Any]) -> None:
         self.levels = dict(state.get("levels", {}))
         self.lr_scale = float(state.get("lr_scale", 1.0))
         self.bad_steps = int(state.get("bad_steps", 0))
@@ -275,7 +275,7 @@ class TrainingGuard:
 
 
 @torch.no_grad()
-def foreground_opacity(pipeline, max_rays: int = 1024) -> Optional[float]:
+def foreground_opacity(pipeline, max_rays: int = 1024) -> float | None:
     """Mean opacity the model renders (canonical path) on up to ``max_rays`` of the training views'
     foreground pixels, evenly spread over them; None when the input has no masks."""
     from va_plugin.rays import RayBundle
@@ -294,7 +294,7 @@ def foreground_opacity(pipeline, max_rays: int = 1024) -> Optional[float]:
     return float(opacity.float().mean())
 
 
-def check_usable(pipeline, config: HealthConfig, steps: int) -> Optional[float]:
+def check_usable(pipeline, config: HealthConfig, steps: int) -> float | None:
     """Raise :class:`UnusableModel` when a run of at least ``config.final_check_after`` steps renders less
     than ``config.min_foreground_opacity`` on the foreground; the opacity measured (None: not checked)."""
     if config.min_foreground_opacity <= 0 or steps < config.final_check_after:

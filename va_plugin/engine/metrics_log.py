@@ -7,12 +7,12 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Any, Dict, List
+from typing import Any
 
 METRICS_FILE = "metrics.jsonl"
 
 
-def append_record(run_dir: Path, record: Dict[str, Any]) -> None:
+def append_record(run_dir: Path, record: dict[str, Any]) -> None:
     """Append one record to the run's log (the folder is made when missing)."""
     run_dir = Path(run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
@@ -20,7 +20,7 @@ def append_record(run_dir: Path, record: Dict[str, Any]) -> None:
         handle.write(json.dumps(record) + "\n")
 
 
-def read_records(run_dir: Path) -> List[Dict[str, Any]]:
+def read_records(run_dir: Path) -> list[dict[str, Any]]:
     """The run's records in order; [] without a log. A line that is not a JSON object (cut short by a
     kill) is skipped."""
     path = Path(run_dir) / METRICS_FILE
@@ -37,12 +37,12 @@ def read_records(run_dir: Path) -> List[Dict[str, Any]]:
     return records
 
 
-def training_records(run_dir: Path) -> List[Dict[str, Any]]:
+def training_records(run_dir: Path) -> list[dict[str, Any]]:
     """The records of training steps (those with a ``loss``), in order."""
     return [record for record in read_records(run_dir) if "loss" in record]
 
 
-def write_records(run_dir: Path, records: List[Dict[str, Any]]) -> None:
+def write_records(run_dir: Path, records: list[dict[str, Any]]) -> None:
     """Replace the run's log with ``records`` (a temporary file, then a rename)."""
     path = Path(run_dir) / METRICS_FILE
     tmp = path.with_name(path.name + ".tmp")

@@ -10,13 +10,13 @@ from va_plugin.eval.image import psnr, ssim
 from va_plugin.eval.lpips import LPIPSWeightsMissing, lpips
 
 __all__ = [
-    "psnr",
-    "ssim",
-    "lpips",
+    "LPIPSWeightsMissing",
     "chamfer_distance",
-    "volume_iou",
     "f_score",
     "geometry_metrics",
+    "lpips",
+    "psnr",
     "sample_surface",
-    "LPIPSWeightsMissing",
+    "ssim",
+    "volume_iou",
 ]

@@ -6,7 +6,7 @@ from __future__ import annotations
 import json
 import time
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any
 
 import numpy as np
 import trimesh
@@ -22,7 +22,7 @@ FSCORE_THRESHOLD = 0.02
 """F-score distance threshold in world units (objects fit a unit box): 2% of the object's size."""
 
 
-def ground_truth_mesh_path(pipeline, scene_dir: Optional[Path] = None) -> Optional[Path]:
+def ground_truth_mesh_path(pipeline, scene_dir: Path | None = None) -> Path | None:
     """The scene's ground-truth mesh (``scene.json``'s "mesh" entry), or None when it has none."""
     train = pipeline.datamanager.train
     if scene_dir is None:
@@ -47,8 +47,8 @@ def load_mesh(path: Path) -> trimesh.Trimesh:
     return mesh
 
 
-def image_metrics(pipeline, image_scale: float = 1.0, max_views: Optional[int] = None, use_lpips: bool = True,
-                  progress: bool = True, render_dir: Optional[Path] = None, render_fn=None) -> Dict[str, Any]:
+def image_metrics(pipeline, image_scale: float = 1.0, max_views: int | None = None, use_lpips: bool = True,
+                  progress: bool = True, render_dir: Path | None = None, render_fn=None) -> dict[str, Any]:
     """Mean PSNR, SSIM and LPIPS over the held-out views, rendered on the canonical path (or by
     ``render_fn(cameras, index)``, see :func:`held_out_views`); with ``render_dir`` each view is also
     written there as ``view_XXX.png`` (render | ground truth)."""
@@ -57,7 +57,7 @@ def image_metrics(pipeline, image_scale: float = 1.0, max_views: Optional[int] =
         return {}
     if use_lpips:
         weight_paths()  # raises LPIPSWeightsMissing before any view is rendered
-    scores: Dict[str, list] = {"psnr": [], "ssim": [], "lpips": []}
+    scores: dict[str, list] = {"psnr": [], "ssim": [], "lpips": []}
     size = None
     for i, render, target in held_out_views(pipeline, image_scale, max_views, progress, desc="evaluating views",
                                               render_fn=render_fn):
@@ -68,20 +68,20 @@ def image_metrics(pipeline, image_scale: float = 1.0, max_views: Optional[int] =
         if render_dir is not None:
             write_pair(render_dir, i, render, target)
         size = render.shape[:2]
-    out: Dict[str, Any] = {k: float(np.mean(v)) for k, v in scores.items() if v}
+    out: dict[str, Any] = {k: float(np.mean(v)) for k, v in scores.items() if v}
     out["image_params"] = {"views": len(scores["psnr"]), "width": None if size is None else int(size[1]),
                            "height": None if size is None else int(size[0]), "background": list(test.background)}
     return out
 
 
-def evaluate_run(pipeline, state: Dict[str, Any], scene_dir: Optional[Path] = None, mesh_resolution: int = 128,
-                 image_scale: float = 1.0, max_views: Optional[int] = None, n_samples: int = 100_000,
-                 progress: bool = True, mesh: Optional[trimesh.Trimesh] = None,
-                 render_dir: Optional[Path] = None) -> Dict[str, Any]:
+def evaluate_run(pipeline, state: dict[str, Any], scene_dir: Path | None = None, mesh_resolution: int = 128,
+                 image_scale: float = 1.0, max_views: int | None = None, n_samples: int = 100_000,
+                 progress: bool = True, mesh: trimesh.Trimesh | None = None,
+                 render_dir: Path | None = None) -> dict[str, Any]:
     """All metrics of a trained run: psnr, ssim, lpips, cd, iou, fscore, plus timing and parameters.
     ``mesh``: the run's mesh if already extracted; ``render_dir``: see :func:`image_metrics`."""
     started = time.perf_counter()
-    result: Dict[str, Any] = {"method": state.get("method_name"), "steps": int(state["step"]),
+    result: dict[str, Any] = {"method": state.get("method_name"), "steps": int(state["step"]),
                               "train_seconds": float(state.get("train_seconds", 0.0))}
     try:
         result.update(image_metrics(pipeline, image_scale, max_views, use_lpips=True, progress=progress,

@@ -9,13 +9,13 @@ two samplings of a surface of area ``A`` with ``n`` points each sit about ``0.5 
 from __future__ import annotations
 
 import warnings
-from typing import Optional, Sequence, Union
+from collections.abc import Sequence
 
 import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
-Bound = Union[float, Sequence[Sequence[float]], np.ndarray]
+Bound = float | Sequence[Sequence[float]] | np.ndarray
 
 # Rays per query point for the inside test; odd, so the majority vote never ties.
 OCCUPANCY_RAYS = 3
@@ -37,7 +37,7 @@ def _check_mesh(mesh, name: str) -> trimesh.Trimesh:
     return mesh
 
 
-def sample_surface(mesh: trimesh.Trimesh, n: int, seed: Union[int, np.random.SeedSequence] = 0) -> np.ndarray:
+def sample_surface(mesh: trimesh.Trimesh, n: int, seed: int | np.random.SeedSequence = 0) -> np.ndarray:
     """``n`` points drawn uniformly over the surface area, ``[n, 3]`` float64; the same ``seed`` (an int
     or a ``SeedSequence``) gives the same points."""
     mesh = _check_mesh(mesh, "mesh")
@@ -102,7 +102,7 @@ def f_score(
     return _f_score(*nearest_distances(pred_mesh, gt_mesh, n_samples, seed), threshold)[0]
 
 
-def _grid_box(pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, bound: Optional[Bound]) -> np.ndarray:
+def _grid_box(pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, bound: Bound | None) -> np.ndarray:
     """The evaluation box ``[[xmin, ymin, zmin], [xmax, ymax, zmax]]`` from ``bound``: None (union of both
     bounding boxes), a float ``b`` (``[-b, b]^3``) or a ``[2, 3]`` array of corners."""
     if bound is None:
@@ -142,7 +142,7 @@ def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
 
 
 def volume_iou(
-    pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, resolution: int = 64, bound: Optional[Bound] = None
+    pred_mesh: trimesh.Trimesh, gt_mesh: trimesh.Trimesh, resolution: int = 64, bound: Bound | None = None
 ) -> float:
     """Volumetric IoU ``|A ∩ B| / |A ∪ B|`` in [0, 1] of the solids the meshes enclose, tested at the
     centres of a ``resolution^3`` grid over :func:`_grid_box`. Warns for a mesh that is not watertight;
@@ -168,7 +168,7 @@ def geometry_metrics(
     seed: int = 0,
     threshold: float = 0.01,
     resolution: int = 64,
-    bound: Optional[Bound] = None,
+    bound: Bound | None = None,
 ) -> dict:
     """Chamfer distance, F-score (with precision and recall) and volume IoU, plus the parameters used;
     the same values as the separate functions with the same arguments."""

@@ -5,15 +5,13 @@ Callers composite RGBA images on white (``rgb * alpha + (1 - alpha)``), predicti
 
 from __future__ import annotations
 
-from typing import Union
-
 import numpy as np
 import torch
 import torch.nn.functional as F
 
 from va_plugin.model_components.losses import psnr_from_mse
 
-ImageLike = Union[torch.Tensor, np.ndarray]
+ImageLike = torch.Tensor | np.ndarray
 
 PSNR_CAP_DB = 100.0
 

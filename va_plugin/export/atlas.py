@@ -7,8 +7,6 @@ Conventions: ``uv`` has v up (OBJ, trimesh); texel ``(row r, column c)`` of an `
 
 from __future__ import annotations
 
-from typing import Optional
-
 import cv2
 import numpy as np
 import trimesh
@@ -23,7 +21,7 @@ MAX_TEXTURE_FACES = 40_000
 steeply with the face count on noisy surfaces."""
 
 
-def simplify_for_texture(mesh: trimesh.Trimesh, max_faces: Optional[int] = MAX_TEXTURE_FACES) -> trimesh.Trimesh:
+def simplify_for_texture(mesh: trimesh.Trimesh, max_faces: int | None = MAX_TEXTURE_FACES) -> trimesh.Trimesh:
     """``mesh`` with at most ``max_faces`` faces (open3d's quadric decimation, which keeps the shape where
     it is flat), or ``mesh`` itself when it has no more, or ``max_faces`` is 0 or None."""
     faces = np.asarray(mesh.faces)

@@ -9,8 +9,6 @@ Harmonisation fits one colour gain per view and channel so that the views agree 
 
 from __future__ import annotations
 
-from typing import List, Optional
-
 import numpy as np
 import torch
 
@@ -90,7 +88,7 @@ def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
 
 
 def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS,
-              max_gain: Optional[float] = None):
+              max_gain: float | None = None):
     """Per-view colour gains that make the views agree where they overlap: ``gains [n, 3]`` with view
     ``reference`` (the generator's conditioning view) fixed at 1.
 
@@ -99,7 +97,7 @@ def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, roun
     fit drifts on near-uniform colours. A view whose gains leave [1 / max_gain, max_gain] (default
     MAX_GAIN; ``inf`` keeps every fit) is kept at 1 and the others are fitted again."""
     max_gain = MAX_GAIN if max_gain is None else max_gain
-    m, n = weights.shape
+    _m, n = weights.shape
     gains = np.ones((n, 3), np.float64)
     visible = weights >= FIT_WEIGHT
     pairs = []
@@ -130,7 +128,7 @@ def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, roun
     return gains.astype(np.float32)
 
 
-def _fit_channel(samples, n: int, keep: List[int], ridge: float, rounds: int) -> np.ndarray:
+def _fit_channel(samples, n: int, keep: list[int], ridge: float, rounds: int) -> np.ndarray:
     """Gains of views ``keep`` for one colour channel (the other views held at 1): iteratively reweighted
     least squares of ``a_k c_k - a_l c_l`` over ``samples``, one ``(k, l, weight, c_k, c_l)`` per pair
     of views of :func:`harmonise` (float64 arrays of the texels both see well)."""

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import torch
@@ -26,7 +25,7 @@ def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: 
     return torch.cat(values).numpy()
 
 
-def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, with_color: bool = True,
+def extract_mesh(model, resolution: int = 128, bound: float | None = None, with_color: bool = True,
                  largest_component: bool = False) -> trimesh.Trimesh:
     """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound,
     after the model's optional ``prepare_mesh_grid(values, spacing)`` and ``fill_mesh_cavities``.
@@ -59,7 +58,8 @@ def extract_mesh(model, resolution: int = 128, bound: Optional[float] = None, wi
     filled = inside_share_at_bound(values, bound, radius, spacing)
     if filled > BOUND_FILLED_SHARE:
         warnings.warn(f"the field is inside the object over {filled:.0%} of the bounding sphere, so most of the "
-                      "mesh is the sphere itself, not an object: the run diverged (or the scene radius is too small)")
+                      "mesh is the sphere itself, not an object: the run diverged (or the scene radius is too small)",
+                      stacklevel=2)
     verts, faces, _, _ = marching_cubes(values, level=0.0, spacing=(spacing,) * 3)
     mesh = trimesh.Trimesh(verts - bound, faces, process=True)
     if mesh.volume < 0:

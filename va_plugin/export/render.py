@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from pathlib import Path
-from typing import Iterator, List, Tuple
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -13,6 +14,9 @@ from tqdm import tqdm
 from va_plugin.cameras import Cameras
 from va_plugin.data.images import write_image
 from va_plugin.rays import RayBundle
+
+if TYPE_CHECKING:
+    import trimesh
 
 
 def render_view(model, cameras: Cameras, index: int, as_view: int = -1, keys=None):
@@ -37,7 +41,7 @@ def turntable_cameras(n_frames: int, resolution: int, elevation_deg: float = 30.
     return orbit_cameras([360.0 * k / n_frames for k in range(n_frames)], elevation_deg, resolution=resolution)
 
 
-def write_video(frames: List[np.ndarray], path: Path, fps: int = 12) -> Path:
+def write_video(frames: list[np.ndarray], path: Path, fps: int = 12) -> Path:
     """Write frames (float RGB) as an MP4 (mp4v) video."""
     path = Path(path)
     height, width = frames[0].shape[:2]
@@ -49,7 +53,7 @@ def write_video(frames: List[np.ndarray], path: Path, fps: int = 12) -> Path:
 
 
 def render_turntable(model, out_dir: Path, n_frames: int = 24, resolution: int = 128, progress: bool = True
-                     ) -> List[Path]:
+                     ) -> list[Path]:
     """PNG frames and ``turntable.mp4`` in ``out_dir``."""
     out_dir = Path(out_dir)
     cameras = turntable_cameras(n_frames, resolution)
@@ -65,7 +69,7 @@ def render_turntable(model, out_dir: Path, n_frames: int = 24, resolution: int =
 
 
 def held_out_views(pipeline, scale: float = 1.0, max_views: int | None = None, progress: bool = True,
-                   desc: str = "test views", render_fn=None) -> Iterator[Tuple[int, np.ndarray, np.ndarray]]:
+                   desc: str = "test views", render_fn=None) -> Iterator[tuple[int, np.ndarray, np.ndarray]]:
     """``(index, render, target)`` of the first ``max_views`` held-out views (all when None), rendered on
     the canonical path at ``scale`` of the scene's size, the target resized to match (area filter).
     ``render_fn(cameras, index) -> [H, W, 3]`` renders something else at those cameras (a textured mesh)."""
@@ -90,20 +94,20 @@ def write_pair(out_dir: Path, index: int, render: np.ndarray, target: np.ndarray
 
 
 def render_test_views(pipeline, out_dir: Path, scale: float = 1.0, max_views: int | None = None,
-                      progress: bool = True) -> List[Path]:
+                      progress: bool = True) -> list[Path]:
     """Each held-out view rendered next to its ground truth: ``view_XXX.png`` (render | target)."""
     return [write_pair(out_dir, i, render, target)
             for i, render, target in held_out_views(pipeline, scale, max_views, progress)]
 
 
-def mesh_views(meshes: List["trimesh.Trimesh"], n_views: int = 4, resolution: int = 128,
+def mesh_views(meshes: list[trimesh.Trimesh], n_views: int = 4, resolution: int = 128,
                elevation_deg: float = 30.0, background: float = 1.0) -> np.ndarray:
     """One row per mesh of ``n_views`` grey shaded renders on the SyncDreamer orbit: the meshes' geometry
     side by side (vertex colours are ignored)."""
     from va_plugin.data.scenes.raycast import MeshRenderer
 
     cameras = turntable_cameras(n_views, resolution, elevation_deg)
-    grey = lambda hits: np.full((hits.points.shape[0], 3), 0.8, np.float32)  # noqa: E731
+    grey = lambda hits: np.full((hits.points.shape[0], 3), 0.8, np.float32)
     rows = []
     for mesh in meshes:
         renderer = MeshRenderer(mesh, grey)

@@ -8,9 +8,9 @@ the atlas charts (:mod:`va_plugin.export.atlas`) are dilated so filtering does n
 from __future__ import annotations
 
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Callable, Dict, List, Optional
 
 import numpy as np
 import torch
@@ -55,11 +55,11 @@ class BakeReport:
     weight_maps: np.ndarray  # [n, S, S] share of each view in each texel's colour
     covered: int  # texels on the surface
     seen: int  # of those, texels at least one view sees
-    view_texels: List[int]  # texels each view sees
-    seconds: Dict[str, float] = field(default_factory=dict)
-    gains: Optional[np.ndarray] = None  # [n, 3] per-view colour gain of the harmonisation (None: off)
+    view_texels: list[int]  # texels each view sees
+    seconds: dict[str, float] = field(default_factory=dict)
+    gains: np.ndarray | None = None  # [n, 3] per-view colour gain of the harmonisation (None: off)
 
-    def summary(self) -> Dict[str, object]:
+    def summary(self) -> dict[str, object]:
         total = np.maximum(self.weight_maps.sum(0), 1e-12)
         share = [float(m.sum() / max(total[total > 1e-12].size, 1)) for m in self.weight_maps]
         out = {"texels_on_surface": self.covered, "texels_seen": self.seen,
@@ -83,8 +83,8 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
-                 fallback: Optional[Fallback] = None, progress: bool = False, atlas=None,
-                 harmonise_views: Optional[bool] = None, max_faces: Optional[int] = MAX_TEXTURE_FACES):
+                 fallback: Fallback | None = None, progress: bool = False, atlas=None,
+                 harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES):
     """UV-unwrap ``mesh`` (simplified to ``max_faces`` first) and bake its texture from ``views``:
     ``(TexturedMesh, BakeReport)``. ``fallback``: the colour of texels no view sees. ``atlas``: the
     ``(vertices, faces, uv)`` of an earlier :func:`~va_plugin.export.atlas.unwrap` at this size, reused.
@@ -182,8 +182,8 @@ def field_fallback(model) -> Fallback:
 
 
 def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 1024, fusion: str = "robust",
-                     inconsistency: bool = False, progress: bool = True, harmonise_views: Optional[bool] = None,
-                     max_faces: Optional[int] = MAX_TEXTURE_FACES):
+                     inconsistency: bool = False, progress: bool = True, harmonise_views: bool | None = None,
+                     max_faces: int | None = MAX_TEXTURE_FACES):
     """Bake ``mesh`` from a loaded run's training views (field colour where none sees), write it to
     ``output`` (GLB or OBJ+MTL+PNG) with ``<stem>_bake.png`` (atlas | per-view weight maps) and
     ``<stem>_bake.json`` beside it; returns ``(TexturedMesh, BakeReport, written paths)``."""

@@ -8,7 +8,6 @@ fall-off where the view disagrees.
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Optional
 
 import cv2
 import numpy as np
@@ -34,8 +33,8 @@ class Views:
 
     cameras: Cameras
     images: np.ndarray  # [n, H, W, 3] float32, composited on the background
-    masks: Optional[np.ndarray] = None  # [n, H, W] bool (None: the mesh's own silhouettes)
-    inconsistency: Optional[np.ndarray] = None  # [n, h, w] float32 per-view disagreement maps, any size
+    masks: np.ndarray | None = None  # [n, H, W] bool (None: the mesh's own silhouettes)
+    inconsistency: np.ndarray | None = None  # [n, h, w] float32 per-view disagreement maps, any size
 
     def __len__(self) -> int:
         return len(self.images)
@@ -69,7 +68,7 @@ def rays_through(cameras: Cameras, index: int, points: np.ndarray):
     return origins.numpy(), directions.numpy(), distance.numpy(), uv.numpy()
 
 
-def silhouette_distance(scene, cameras: Cameras, index: int, mask: Optional[np.ndarray]) -> np.ndarray:
+def silhouette_distance(scene, cameras: Cameras, index: int, mask: np.ndarray | None) -> np.ndarray:
     """Distance in pixels ``[H, W]`` to the nearest pixel outside the object in view ``index`` (0 outside);
     the object is where the mesh is hit and, when given, ``mask`` is set."""
     _, rows, cols = cameras.pixel_grid(index)

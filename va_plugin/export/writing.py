@@ -5,7 +5,7 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import TYPE_CHECKING, Dict, List, Optional
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
@@ -25,14 +25,14 @@ def check_texture_output(path: Path) -> None:
         raise VAError(f"a textured mesh is written as {' or '.join(TEXTURE_FORMATS)}, not {Path(path).suffix!r}")
 
 
-def write_textured_mesh(textured: TexturedMesh, path: Path) -> List[Path]:
+def write_textured_mesh(textured: TexturedMesh, path: Path) -> list[Path]:
     """GLB with the texture embedded, or OBJ with its ``.mtl`` and ``.png`` beside it (same stem). Every file
     is written under a temporary name first and renamed at the end, so a failure leaves nothing half-written."""
     path = Path(path)
     check_texture_output(path)
     path.parent.mkdir(parents=True, exist_ok=True)
     mesh = textured.to_trimesh()
-    staged: Dict[Path, bytes] = {}
+    staged: dict[Path, bytes] = {}
     if path.suffix.lower() == ".glb":
         staged[path] = mesh.export(file_type="glb")
     else:
@@ -78,7 +78,7 @@ def bake_picture(textured: TexturedMesh, report: BakeReport, path: Path, tile: i
     return Path(path)
 
 
-def write_bake_record(report: BakeReport, path: Path, extra: Optional[Dict[str, object]] = None) -> Path:
+def write_bake_record(report: BakeReport, path: Path, extra: dict[str, object] | None = None) -> Path:
     """The bake's summary (:meth:`BakeReport.summary`) and ``extra`` as JSON at ``path``."""
     record = {**report.summary(), **(extra or {})}
     Path(path).write_text(json.dumps(record, indent=2))

@@ -5,8 +5,8 @@ wrapper can act between the halves.
 
 from __future__ import annotations
 
+import itertools
 from dataclasses import dataclass
-from typing import Dict, List, Tuple
 
 import torch
 from torch import nn
@@ -77,7 +77,7 @@ class Field(nn.Module):
     geometry_kind: str = "sdf"
     feature_dim: int = 0
 
-    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``positions [..., 3]`` -> (SDF or raw density ``[..., 1]``, geometry feature ``[..., G]``)."""
         raise NotImplementedError
 
@@ -91,7 +91,7 @@ class Field(nn.Module):
         raise NotImplementedError
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
-              weights=None, ray_indices=None) -> Dict[str, torch.Tensor]:
+              weights=None, ray_indices=None) -> dict[str, torch.Tensor]:
         """RGB of samples. ``camera_indices`` (``[...]``, -1 for novel views), the detached rendering
         ``weights`` and ``ray_indices`` (``[...]``, None where unknown) are ignored by plain fields."""
         return {"rgb": self.decode_color(self.color_features(positions, directions, normals, geo_features))}
@@ -100,7 +100,7 @@ class Field(nn.Module):
         """Schedules of the field (e.g. coarse-to-fine grid levels), called before each training step
         and when a run is loaded."""
 
-    def param_groups(self) -> Dict[str, List[nn.Parameter]]:
+    def param_groups(self) -> dict[str, list[nn.Parameter]]:
         """Parameters keyed like the optimizer config."""
         return {"fields": list(self.parameters())}
 
@@ -112,7 +112,7 @@ class MLP(nn.Module):
                  activation: nn.Module | None = None, out_activation: nn.Module | None = None) -> None:
         super().__init__()
         dims = [in_dim] + [width] * n_layers
-        self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in zip(dims[:-1], dims[1:]))
+        self.hidden = nn.ModuleList(nn.Linear(a, b) for a, b in itertools.pairwise(dims))
         self.activation = activation if activation is not None else nn.ReLU()
         self.out = nn.Linear(dims[-1], out_dim) if out_dim > 0 else None
         self.out_activation = out_activation

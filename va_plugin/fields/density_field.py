@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Tuple, Type
 
 import torch
 from torch import nn
@@ -40,7 +39,7 @@ def trunc_exp(x: torch.Tensor) -> torch.Tensor:
 class DensityFieldConfig(HashGridFieldConfig):
     """An NGP field: hash grid -> density MLP -> (raw density, feature); colour MLP on (feature, gamma(d))."""
 
-    _target: Type = field(default_factory=lambda: DensityField)
+    _target: type = field(default_factory=lambda: DensityField)
     hidden_width: int = 64
     """Hidden width of the density MLP."""
     hidden_layers: int = 1
@@ -72,7 +71,7 @@ class DensityField(Field):
                              config.color_layers, 3, out_activation=nn.Sigmoid())
         self.feature_dim = config.color_width
 
-    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``positions [..., 3]`` -> (raw density ``[..., 1]``, before :func:`trunc_exp`; feature ``[..., G]``)."""
         out = self.density_net(self.encoding(positions))
         return out[..., :1], out[..., 1:]

@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Tuple, Type
 
 import torch
 from torch import nn
@@ -31,7 +30,7 @@ _TETRAHEDRON = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1
 class HashSDFFieldConfig(HashGridFieldConfig):
     """A NeuS field on a hash grid: SDF MLP on (x, hash(x)), colour MLP on (feature, normal[, gamma(d)])."""
 
-    _target: Type = field(default_factory=lambda: HashSDFField)
+    _target: type = field(default_factory=lambda: HashSDFField)
     coarse_to_fine_fraction: float = 0.3
     """Share of the step budget after which every grid level is open (0: all open from the start)."""
     sdf_width: int = 64
@@ -121,7 +120,7 @@ class HashSDFField(Field):
     def _inputs(self, positions: torch.Tensor) -> torch.Tensor:
         return torch.cat([positions, self.encoding(positions)], dim=-1)
 
-    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         out = self.sdf_net(self._inputs(positions))
         return out[..., :1], out[..., 1:]
 
@@ -129,7 +128,7 @@ class HashSDFField(Field):
         """SDF only, ``[..., 1]``."""
         return self.geometry(positions)[0]
 
-    def geometry_and_gradient(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]``, with a
         graph that one ordinary backward pass trains from (no double backward)."""
         if self.config.sdf_gradient == "finite_difference":
@@ -144,13 +143,13 @@ class HashSDFField(Field):
         lead = positions.shape[:-1]
         return out[:, :1].reshape(*lead, 1), out[:, 1:].reshape(*lead, out.shape[-1] - 1), gradient.reshape(*lead, 3)
 
-    def _sdf_and_gradient(self, flat: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    def _sdf_and_gradient(self, flat: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """The SDF MLP's output ``[n, 1 + G]`` and the SDF's gradient ``[n, 3]`` at points ``[n, 3]``."""
         encoded, pullback = self.encoding.forward_with_pullback(flat)
         out, grad_in = mlp_with_input_gradient(self.sdf_net, torch.cat([flat, encoded], dim=-1))
         return out, grad_in[:, :3] + pullback(grad_in[:, 3:])
 
-    def _finite_difference(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def _finite_difference(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         step = self.finite_difference_step()
         vertices = positions.new_tensor(_TETRAHEDRON)  # [4, 3]
         sdf, features = self.geometry(positions)

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Optional, Tuple, Type
 
 import torch
 from torch import nn
@@ -17,7 +16,7 @@ from va_plugin.fields.encodings.positional import PositionalEncoding
 class SDFFieldConfig(FieldConfig):
     """A NeuS field: SDF network on gamma(x) and a colour network on (x, normal, gamma(d), feature)."""
 
-    _target: Type = field(default_factory=lambda: SDFField)
+    _target: type = field(default_factory=lambda: SDFField)
     position_frequencies: int = 6
     """Frequency bands of gamma(x) (the paper uses 6)."""
     direction_frequencies: int = 4
@@ -66,11 +65,11 @@ class SDFField(Field):
             nn.init.normal_(out.weight, math.sqrt(math.pi) / math.sqrt(out.in_features), 1e-4)
             nn.init.constant_(out.bias, -self.config.init_radius)
 
-    def geometry(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+    def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         out = self.sdf_net(self.position_encoding(positions))
         return out[..., :1], out[..., 1:]
 
-    def geometry_and_gradient(self, positions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` in one pass
         (:func:`mlp_with_input_gradient`, pulled back through the encoding): losses on the gradient need
         one backward pass, not a double backward. Matches ``torch.autograd.grad`` to float rounding."""
@@ -89,7 +88,7 @@ class SDFField(Field):
         return self.color_net.head(features)
 
 
-def mlp_with_input_gradient(net: MLP, inputs: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+def mlp_with_input_gradient(net: MLP, inputs: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """An MLP's output ``[..., out]`` and the derivative of its first output with respect to its
     input ``[..., in]``, the chain rule written out next to the forward pass.
 
@@ -109,7 +108,7 @@ def mlp_with_input_gradient(net: MLP, inputs: torch.Tensor) -> Tuple[torch.Tenso
     return out, grad
 
 
-def _activation_and_slope(activation: nn.Module, z: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+def _activation_and_slope(activation: nn.Module, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """a(z) and a'(z) of the SDF network's activation, both differentiable in ``z``."""
     if isinstance(activation, nn.Softplus):
         return _SoftplusAndSlope.apply(z, float(activation.beta), float(activation.threshold))
@@ -136,7 +135,7 @@ class _SoftplusAndSlope(torch.autograd.Function):
 
     @staticmethod
     @torch.autograd.function.once_differentiable
-    def backward(ctx, grad_h: Optional[torch.Tensor], grad_slope: Optional[torch.Tensor]):
+    def backward(ctx, grad_h: torch.Tensor | None, grad_slope: torch.Tensor | None):
         (slope,) = ctx.saved_tensors
         if grad_slope is None:
             return (None if grad_h is None else grad_h * slope), None, None

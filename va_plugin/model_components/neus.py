@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from typing import Callable, Optional
+from collections.abc import Callable
 
 import torch
 from torch import nn
@@ -69,7 +69,7 @@ def sdf_band(coarse_edges: torch.Tensor, coarse_sdf: torch.Tensor, t_mid: torch.
 
 def surface_crossings(sdf_fn: Callable[[torch.Tensor], torch.Tensor], origins: torch.Tensor,
                       directions: torch.Tensor, nears: torch.Tensor, fars: torch.Tensor,
-                      n_samples: int, band: Optional[float] = 6.0) -> torch.Tensor:
+                      n_samples: int, band: float | None = 6.0) -> torch.Tensor:
     """Half the number of times each line crosses the zero level set of ``sdf_fn``, ``[n_rays]``.
 
     The lines run from ``nears`` to ``fars`` (``[n_rays, 1]``) along ``origins + t directions``; the SDF

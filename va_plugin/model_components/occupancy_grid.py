@@ -11,8 +11,8 @@ updates overwrite the values. :func:`scatter` moves packed samples (``dense[keep
 from __future__ import annotations
 
 import math
+from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Callable, Type
 
 import torch
 from torch import nn
@@ -29,7 +29,7 @@ UPDATE_CHUNK = 65536
 class OccupancyGridConfig(InstantiateConfig):
     """A max-decay occupancy grid over the scene bound, updated from the field's density."""
 
-    _target: Type = field(default_factory=lambda: OccupancyGrid)
+    _target: type = field(default_factory=lambda: OccupancyGrid)
     enabled: bool = True
     """Skip samples in empty cells (off: every sample inside the bounding sphere is evaluated)."""
     resolution: int = 64

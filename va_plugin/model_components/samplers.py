@@ -2,15 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Optional
-
 import torch
 
 PDF_PADDING = 1e-5
 
 
 def uniform_edges(nears: torch.Tensor, fars: torch.Tensor, n_samples: int, jitter: bool,
-                  generator: Optional[torch.Generator] = None) -> torch.Tensor:
+                  generator: torch.Generator | None = None) -> torch.Tensor:
     """Sample positions ``[n_rays, n_samples]`` spread evenly in [near, far] (``nears, fars [n_rays, 1]``),
     jittered when training."""
     steps = torch.linspace(0.0, 1.0, n_samples + 1, device=nears.device)[:-1]
@@ -24,7 +22,7 @@ def uniform_edges(nears: torch.Tensor, fars: torch.Tensor, n_samples: int, jitte
 
 
 def sample_pdf(bins: torch.Tensor, weights: torch.Tensor, n_samples: int, jitter: bool,
-               generator: Optional[torch.Generator] = None) -> torch.Tensor:
+               generator: torch.Generator | None = None) -> torch.Tensor:
     """Draw ``n_samples`` positions ``[n_rays, n_samples]`` in [bins[0], bins[-1]] from the piecewise-constant
     PDF of ``weights [n_rays, n_bins]`` (padded by 1e-5: an all-zero row is uniform) over the sorted bin
     edges ``bins [n_rays, n_bins + 1]``."""

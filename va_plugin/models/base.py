@@ -2,8 +2,8 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
-from typing import Callable, Dict, List, Optional, Sequence
 
 import torch
 from torch import nn
@@ -23,7 +23,7 @@ class SceneInfo:
     scene_radius: float
     background: Sequence[float] = (1.0, 1.0, 1.0)
     max_steps: int = 1000  # where the run's schedules end (the trainer's ``schedule_horizon``)
-    train_cameras: Optional[Cameras] = None  # on the device (the NGP occupancy grid keeps cells they all see)
+    train_cameras: Cameras | None = None  # on the device (the NGP occupancy grid keeps cells they all see)
 
 
 @dataclass
@@ -34,7 +34,7 @@ class ModelConfig(InstantiateConfig):
     """Rays rendered at once when rendering whole images."""
 
 
-ExtraLoss = Callable[[Dict[str, torch.Tensor], Dict[str, torch.Tensor], int], Dict[str, torch.Tensor]]
+ExtraLoss = Callable[[dict[str, torch.Tensor], dict[str, torch.Tensor], int], dict[str, torch.Tensor]]
 
 
 class Model(nn.Module):
@@ -49,7 +49,7 @@ class Model(nn.Module):
         self.register_buffer("background", torch.tensor(list(scene.background), dtype=torch.float32),
                              persistent=False)
         self.step = 0
-        self.extra_losses: List[ExtraLoss] = []  # hooks adding loss terms: ``(outputs, batch, step) -> dict``
+        self.extra_losses: list[ExtraLoss] = []  # hooks adding loss terms: ``(outputs, batch, step) -> dict``
 
     # -- training -------------------------------------------------------------------------------
     def update_step(self, step: int) -> None:
@@ -65,16 +65,16 @@ class Model(nn.Module):
         ``step``, without touching any parameter: for a model loaded from a checkpoint."""
         Model.update_step(self, step)
 
-    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+    def get_outputs(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
-    def get_loss_dict(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]
-                      ) -> Dict[str, torch.Tensor]:
+    def get_loss_dict(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]
+                      ) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
-    def composite_other_colours(self, outputs: Dict[str, torch.Tensor], color: Dict[str, torch.Tensor],
+    def composite_other_colours(self, outputs: dict[str, torch.Tensor], color: dict[str, torch.Tensor],
                                 weights: torch.Tensor, per_ray: Callable[[torch.Tensor], torch.Tensor]
-                                ) -> Dict[str, torch.Tensor]:
+                                ) -> dict[str, torch.Tensor]:
         """``outputs`` plus the field's other per-sample outputs besides ``rgb``: colours (``rgb_*``, e.g. the
         canonical or the shared one) composited per ray with ``weights [R, s]``, anything else as it is.
         ``per_ray`` lays a per-sample tensor out as ``[R, s, ...]``."""
@@ -87,7 +87,7 @@ class Model(nn.Module):
                 outputs[key] = value
         return outputs
 
-    def apply_extra_losses(self, losses: Dict[str, torch.Tensor], outputs, batch) -> Dict[str, torch.Tensor]:
+    def apply_extra_losses(self, losses: dict[str, torch.Tensor], outputs, batch) -> dict[str, torch.Tensor]:
         """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the
         view-adaptive regularizers) and the registered hooks'."""
         field_losses = getattr(getattr(self, "field", None), "extra_losses", None)
@@ -101,37 +101,37 @@ class Model(nn.Module):
         """The model's photometric loss (mean squared error) of rendered against target colours ``[R, 3]``."""
         return rgb_loss(pred, target)
 
-    def get_metrics_dict(self, outputs: Dict[str, torch.Tensor], batch: Dict[str, torch.Tensor]
-                         ) -> Dict[str, float]:
+    def get_metrics_dict(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]
+                         ) -> dict[str, float]:
         """Training-batch PSNR of the rendered colour."""
         mse = ((outputs["rgb"].detach() - batch["rgb"].detach()) ** 2).mean()
         return {"psnr": float(psnr_from_mse(mse))}
 
-    def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
+    def get_param_groups(self) -> dict[str, list[nn.Parameter]]:
         raise NotImplementedError
 
-    def training_callbacks(self) -> List[object]:
+    def training_callbacks(self) -> list[object]:
         """Callbacks the trainer runs (e.g. phase switches); the model knows nothing of the trainer.
         By default those of the model's ``field``, if it has any."""
         make = getattr(getattr(self, "field", None), "training_callbacks", None)
         return list(make()) if make is not None else []
 
-    def diagnostics(self) -> Dict[str, float]:
+    def diagnostics(self) -> dict[str, float]:
         """Scalars worth logging (e.g. inv_s); by default those of the model's ``field``."""
         report = getattr(getattr(self, "field", None), "diagnostics", None)
         return dict(report()) if report is not None else {}
 
-    def sharpness(self) -> Optional[float]:
+    def sharpness(self) -> float | None:
         """NeuS's inv_s for the training guard's collapse test; None for models without one."""
         return None
 
     # -- evaluation and export ------------------------------------------------------------------
     def render_rays(self, ray_bundle: RayBundle, keys: Sequence[str] = ("rgb", "accumulation", "depth")
-                    ) -> Dict[str, torch.Tensor]:
+                    ) -> dict[str, torch.Tensor]:
         """Render many rays in chunks without building a graph; returns the chosen outputs."""
         was_training = self.training
         self.eval()
-        collected: Dict[str, List[torch.Tensor]] = {k: [] for k in keys}
+        collected: dict[str, list[torch.Tensor]] = {k: [] for k in keys}
         try:
             for start in range(0, len(ray_bundle), self.config.eval_chunk):
                 chunk = ray_bundle[start:start + self.config.eval_chunk]

@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Type
 
 import torch
 from torch import nn
@@ -25,7 +24,7 @@ from va_plugin.utils.stages import stage, timed
 class NeuSModelConfig(ModelConfig):
     """NeuS: SDF field, learned inv_s, up-sampling inside the bounding sphere, eikonal and mask losses."""
 
-    _target: Type = field(default_factory=lambda: NeuSModel)
+    _target: type = field(default_factory=lambda: NeuSModel)
     field: FieldConfig = field(default_factory=SDFFieldConfig)
     """The field (an SDF field, or a view-adaptive wrapper around one)."""
     n_samples: int = 32
@@ -130,15 +129,15 @@ class NeuSModel(Model):
             with torch.no_grad():
                 self.variance.variance.clamp_(min=math.log(floor) / 10.0)
 
-    def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
+    def get_param_groups(self) -> dict[str, list[nn.Parameter]]:
         groups = self.field.param_groups()
         groups["variance"] = list(self.variance.parameters())  # inv_s: its own rate (a method config sets it)
         return groups
 
-    def sharpness(self) -> Optional[float]:
+    def sharpness(self) -> float | None:
         return float(self.variance.inv_s().detach())
 
-    def diagnostics(self) -> Dict[str, float]:
+    def diagnostics(self) -> dict[str, float]:
         return {**super().diagnostics(), "inv_s": self.sharpness(),
                 "samples_per_ray": round(self.samples_per_ray, 3), "probed_per_ray": round(self.probed_per_ray, 3)}
 
@@ -181,7 +180,7 @@ class NeuSModel(Model):
         return self.field.geometry(points)[0][..., 0]
 
     # -- rendering ------------------------------------------------------------------------------
-    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+    def get_outputs(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
         nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions,
                                                  self.scene.scene_radius)
         ray_bundle.nears, ray_bundle.fars = nears, fars
@@ -216,15 +215,15 @@ class NeuSModel(Model):
         return (cfg.n_importance // cfg.up_sample_steps) * (cfg.up_sample_steps - 1)
 
     def _render(self, ray_bundle: RayBundle, edges: torch.Tensor,
-                keep: Optional[torch.Tensor] = None) -> Dict[str, torch.Tensor]:
+                keep: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
         """Render rays that may hit the surface, given their section edges ``[n_rays, n + 1]``.
 
         With ``keep`` (``[n_rays, n]`` bool) only those samples are evaluated, packed row-major as in
         ``samples.positions[keep]``; the others get alpha 0. Per-sample outputs (weights, gradients,
         inside) are then packed too."""
         samples = RaySamples.from_edges(ray_bundle, edges)
-        pack = (lambda t: t) if keep is None else (lambda t: t[keep])  # noqa: E731
-        unpack = (lambda t: t) if keep is None else (lambda t: scatter(t, keep))  # noqa: E731
+        pack = (lambda t: t) if keep is None else (lambda t: t[keep])
+        unpack = (lambda t: t) if keep is None else (lambda t: scatter(t, keep))
         sample_cameras = pack(samples.camera_indices[:, None].expand(samples.t_mid.shape))
         if self.sdf_gradient == "analytic":  # a graph only while training: evaluation records nothing
             with torch.set_grad_enabled(self.training), stage("sdf_gradient"):
@@ -261,7 +260,7 @@ class NeuSModel(Model):
         }
         return self.composite_other_colours(outputs, color, weights, unpack)
 
-    def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
+    def get_loss_dict(self, outputs, batch) -> dict[str, torch.Tensor]:
         cfg = self.config
         loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"])}
         if cfg.eikonal_weight > 0:
@@ -314,8 +313,8 @@ def _supports_analytic_gradient(field) -> bool:
 PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")
 
 
-def _scatter_rays(inner: Dict[str, torch.Tensor], index: torch.Tensor, n_rays: int,
-                  background: torch.Tensor, blank: bool = False) -> Dict[str, torch.Tensor]:
+def _scatter_rays(inner: dict[str, torch.Tensor], index: torch.Tensor, n_rays: int,
+                  background: torch.Tensor, blank: bool = False) -> dict[str, torch.Tensor]:
     """Per-ray outputs for all ``n_rays`` from those of the rendered subset ``index``; skipped rays
     render the background with zero opacity. Per-sample outputs keep only the rendered rays. With
     ``blank``, the rendered rays were skipped too (kept only for the graph): they show nothing either."""

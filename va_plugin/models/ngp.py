@@ -9,7 +9,6 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Type
 
 import numpy as np
 import torch
@@ -20,8 +19,7 @@ from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.density_field import DensityFieldConfig, trunc_exp
 from va_plugin.model_components import losses, renderers
-from va_plugin.model_components.occupancy_grid import (OccupancyGrid, OccupancyGridConfig, scatter,
-                                                        transmittance_before)
+from va_plugin.model_components.occupancy_grid import OccupancyGrid, OccupancyGridConfig, scatter, transmittance_before
 from va_plugin.model_components.samplers import uniform_edges
 from va_plugin.models.base import Model, ModelConfig, SceneInfo
 from va_plugin.rays import RayBundle, RaySamples, near_far_from_sphere
@@ -32,7 +30,7 @@ from va_plugin.utils.stages import timed
 class NGPModelConfig(ModelConfig):
     """NGP: hash-grid density field, occupancy-grid marching, early ray termination, mask loss."""
 
-    _target: Type = field(default_factory=lambda: NGPModel)
+    _target: type = field(default_factory=lambda: NGPModel)
     occupancy_grid: OccupancyGridConfig = field(default_factory=OccupancyGridConfig)
     """Empty-space skipping (``occupancy_grid.enabled=false`` evaluates every sample)."""
     field: FieldConfig = field(default_factory=DensityFieldConfig)
@@ -80,7 +78,7 @@ class NGPModel(Model):
         bound = getattr(self.field, "bound", None)
         if bound is not None and bound < scene.scene_radius:
             raise ConfigError(f"field.bound ({bound}) must be at least the scene radius ({scene.scene_radius})")
-        self.occupancy_grid: Optional[OccupancyGrid] = \
+        self.occupancy_grid: OccupancyGrid | None = \
             config.occupancy_grid.setup(bound=scene.scene_radius) if config.occupancy_grid.enabled else None
         self._views_marked = False
         # per ray of the last training batch: samples evaluated with gradients, and by the gradient-free pass
@@ -88,10 +86,10 @@ class NGPModel(Model):
         self.probed_per_ray = 0.0
 
     # -- training -------------------------------------------------------------------------------
-    def get_param_groups(self) -> Dict[str, List[nn.Parameter]]:
+    def get_param_groups(self) -> dict[str, list[nn.Parameter]]:
         return self.field.param_groups()
 
-    def training_callbacks(self) -> List[object]:
+    def training_callbacks(self) -> list[object]:
         callbacks = list(super().training_callbacks())
         if self.occupancy_grid is not None:
             callbacks.append(TrainingCallback(self._update_occupancy, BEFORE_STEP,
@@ -106,7 +104,7 @@ class NGPModel(Model):
             self._views_marked = True
         grid.update(step, self.density)
 
-    def diagnostics(self) -> Dict[str, float]:
+    def diagnostics(self) -> dict[str, float]:
         out = {**super().diagnostics(), "samples_per_ray": round(self.samples_per_ray, 3),
                "probed_per_ray": round(self.probed_per_ray, 3)}
         if self.occupancy_grid is not None:
@@ -118,14 +116,14 @@ class NGPModel(Model):
         return trunc_exp(self.field.geometry(points)[0][..., 0])
 
     # -- rendering ------------------------------------------------------------------------------
-    def get_outputs(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+    def get_outputs(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
         if self.training:
             return self._render(ray_bundle)
         with torch.no_grad():
             return self._render(ray_bundle)
 
     @timed("sampling")
-    def _samples_to_evaluate(self, samples: RaySamples) -> tuple[torch.Tensor, Optional[tuple]]:
+    def _samples_to_evaluate(self, samples: RaySamples) -> tuple[torch.Tensor, tuple | None]:
         """Which samples ``[n_rays, n_samples]`` the field must evaluate (inside the sphere, occupied, in
         front of where the ray turns opaque), and the gradient-free pass's (raw density, feature) of
         them when no gradient is needed."""
@@ -145,7 +143,7 @@ class NGPModel(Model):
         chosen = visible[keep]
         return visible, (raw[chosen], geo_features[chosen])
 
-    def _render(self, ray_bundle: RayBundle) -> Dict[str, torch.Tensor]:
+    def _render(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
         nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions, self.scene.scene_radius)
         ray_bundle.nears, ray_bundle.fars = nears, fars
         inner = uniform_edges(nears, fars, self.config.n_samples - 1, jitter=self.training)
@@ -173,7 +171,7 @@ class NGPModel(Model):
             outputs["distortion"] = distortion(weights, samples.t_mid * scale, samples.deltas * scale)
         return self.composite_other_colours(outputs, color, weights, lambda value: scatter(value, keep))
 
-    def get_loss_dict(self, outputs, batch) -> Dict[str, torch.Tensor]:
+    def get_loss_dict(self, outputs, batch) -> dict[str, torch.Tensor]:
         cfg = self.config
         loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"])}
         if cfg.mask_weight > 0 and "mask" in batch:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Tuple, Type
 
 import torch
 from torch import nn
@@ -20,7 +19,7 @@ from va_plugin.utils.stages import stage
 class PipelineConfig(InstantiateConfig):
     """A data manager and a model."""
 
-    _target: Type = field(default_factory=lambda: Pipeline)
+    _target: type = field(default_factory=lambda: Pipeline)
     datamanager: DataManagerConfig = field(default_factory=DataManagerConfig)
     """Where training rays come from."""
     model: ModelConfig = field(default_factory=NeuSModelConfig)
@@ -39,7 +38,7 @@ class Pipeline(nn.Module):
                           train_cameras=self.datamanager.cameras)
         self.model = config.model.setup(scene=scene).to(device)
 
-    def train_step(self, step: int) -> Tuple[Dict[str, torch.Tensor], Dict[str, float]]:
+    def train_step(self, step: int) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
         """Losses (weighted, to be summed) and metrics of one training batch."""
         self.model.update_step(step)
         with stage("data"):
@@ -51,12 +50,12 @@ class Pipeline(nn.Module):
         return loss_dict, metrics
 
     @torch.no_grad()
-    def evaluate_views(self, max_views: Optional[int] = None) -> Tuple[Dict[str, float], List[Dict[str, torch.Tensor]]]:
+    def evaluate_views(self, max_views: int | None = None) -> tuple[dict[str, float], list[dict[str, torch.Tensor]]]:
         """Render the held-out views; mean PSNR and the rendered images ``[H, W, 3]``."""
         renders, psnrs = [], []
         height, width = (self.datamanager.test.cameras.height, self.datamanager.test.cameras.width) \
             if self.datamanager.test is not None else (0, 0)
-        for index, rays, image, mask in self.datamanager.eval_views():
+        for index, rays, image, _mask in self.datamanager.eval_views():
             if max_views is not None and index >= max_views:
                 break
             out = self.model.render_rays(rays)

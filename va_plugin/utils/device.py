@@ -2,14 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Optional
-
 import torch
 
 from va_plugin.errors import ConfigError
 
 
-def pick_device(override: Optional[str] = None) -> torch.device:
+def pick_device(override: str | None = None) -> torch.device:
     """The device to run on: ``override`` if given ("cpu", "cuda", "cuda:1"), else CUDA when present."""
     if override in (None, "", "auto"):
         return torch.device("cuda" if torch.cuda.is_available() else "cpu")

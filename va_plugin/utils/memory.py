@@ -98,5 +98,5 @@ def check_texture_memory(size: int, n_views: int, option: str = "--texture-size"
     per_texel = BAKE_BYTES_PER_TEXEL + BAKE_BYTES_PER_TEXEL_VIEW * n_views
     need, room = float(size) ** 2 * per_texel, budget()
     if need > room:
-        largest = 2 ** int(math.floor(math.log2(max(math.sqrt(room / per_texel), 1.0))))
+        largest = 2 ** math.floor(math.log2(max(math.sqrt(room / per_texel), 1.0)))
         _refuse(option, size, need, room, largest, f" with {n_views} views")

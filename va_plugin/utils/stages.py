@@ -11,12 +11,12 @@ from __future__ import annotations
 import functools
 import time
 from collections import defaultdict
+from collections.abc import Callable, Iterable, Iterator
 from contextlib import contextmanager
-from typing import Callable, Dict, Iterable, Iterator, List, Optional
 
 import torch
 
-_recorder: Optional["StageRecorder"] = None
+_recorder: StageRecorder | None = None
 
 
 class StageRecorder:
@@ -24,9 +24,9 @@ class StageRecorder:
 
     def __init__(self, synchronize: bool = False) -> None:
         self.synchronize = synchronize
-        self.exclusive: Dict[str, float] = defaultdict(float)
-        self.inclusive: Dict[str, float] = defaultdict(float)
-        self._stack: List[list] = []  # [name, start, seconds spent in nested stages]
+        self.exclusive: dict[str, float] = defaultdict(float)
+        self.inclusive: dict[str, float] = defaultdict(float)
+        self._stack: list[list] = []  # [name, start, seconds spent in nested stages]
 
     def _now(self) -> float:
         if self.synchronize:
@@ -100,7 +100,7 @@ def recording(synchronize: bool = False) -> Iterator[StageRecorder]:
         _recorder = None
 
 
-def time_modules(modules: Iterable[torch.nn.Module], name: str) -> List[object]:
+def time_modules(modules: Iterable[torch.nn.Module], name: str) -> list[object]:
     """Charge every forward call of ``modules`` to stage ``name`` (while recording); returns the hook
     handles, whose ``remove()`` takes the hooks off again."""
     handles = []

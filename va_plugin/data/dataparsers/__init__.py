@@ -2,17 +2,23 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Callable, Dict, Optional
 
 import numpy as np
 
 from va_plugin.data.dataparsers.base import DataParserConfig
-from va_plugin.data.dataparsers.generators import (IMAGE_SUFFIXES, SYNCDREAMER_LAYOUT, WONDER3D_LAYOUT,
-                                                   ZERO123PP_LAYOUT, SyncDreamerDataParserConfig,
-                                                   Wonder3DDataParserConfig, Zero123ppDataParserConfig,
-                                                   wonder3d_file)
+from va_plugin.data.dataparsers.generators import (
+    IMAGE_SUFFIXES,
+    SYNCDREAMER_LAYOUT,
+    WONDER3D_LAYOUT,
+    ZERO123PP_LAYOUT,
+    SyncDreamerDataParserConfig,
+    Wonder3DDataParserConfig,
+    Zero123ppDataParserConfig,
+    wonder3d_file,
+)
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
 from va_plugin.data.images import decode_image
 from va_plugin.data.rigs import RIG_VIEWS, WONDER3D_VIEWS
@@ -28,7 +34,7 @@ class DataFormat:
     layout: str
 
 
-def image_shape(path: Path) -> Optional[tuple]:
+def image_shape(path: Path) -> tuple | None:
     """``(height, width)`` of an image file, or None when ``path`` is not a readable image."""
     if not (path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES):
         return None
@@ -60,7 +66,7 @@ def _is_wonder3d(path: Path) -> bool:
 
 
 COMMON_OPTIONS = ("background", "scene_radius", "image_scale")  # carried over from a method's dataparser
-FORMATS: Dict[str, DataFormat] = {
+FORMATS: dict[str, DataFormat] = {
     "transforms": DataFormat(TransformsDataParserConfig, _is_transforms,
                              "a folder with transforms.json (or transforms_train.json), or that json file"),
     "syncdreamer": DataFormat(SyncDreamerDataParserConfig, _is_strip, SYNCDREAMER_LAYOUT),
@@ -88,7 +94,7 @@ def detect_format(path: Path) -> str:
     raise DataError(f"{path} could be any of {', '.join(matches)}; choose one with --data-format")
 
 
-def resolve_dataparser(path: Path, data_format: str = "auto", base: Optional[DataParserConfig] = None
+def resolve_dataparser(path: Path, data_format: str = "auto", base: DataParserConfig | None = None
                        ) -> DataParserConfig:
     """A dataparser config for ``path``, keeping the common options of ``base`` (background, radius...)
     where the method changed them from their defaults."""

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
 import numpy as np
 import torch
@@ -19,12 +19,12 @@ class DataparserOutputs:
     """One split of a scene."""
 
     images: torch.Tensor  # [n, H, W, 3] float in [0, 1], composited on ``background``
-    masks: Optional[torch.Tensor]  # [n, H, W, 1] foreground in [0, 1], or None
+    masks: torch.Tensor | None  # [n, H, W, 1] foreground in [0, 1], or None
     cameras: Cameras
     scene_radius: float  # of the bounding sphere at the origin that holds the object
-    background: Tuple[float, float, float]
-    image_paths: List[Path] = field(default_factory=list)  # for messages
-    metadata: Dict[str, Any] = field(default_factory=dict)  # anything else the source knows
+    background: tuple[float, float, float]
+    image_paths: list[Path] = field(default_factory=list)  # for messages
+    metadata: dict[str, Any] = field(default_factory=dict)  # anything else the source knows
 
     def __len__(self) -> int:
         return self.images.shape[0]
@@ -36,7 +36,7 @@ class DataParserConfig(InstantiateConfig):
 
     data: Path = Path(".")
     """The scene: a folder or file, as the format expects."""
-    background: Tuple[float, float, float] = (1.0, 1.0, 1.0)
+    background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     """RGB in [0, 1] that transparent pixels are composited on (white by default)."""
     scene_radius: float = 1.0
     """Radius of the bounding sphere at the origin that holds the object (unless the data says otherwise)."""
@@ -56,8 +56,8 @@ class DataParser:
         raise NotImplementedError
 
 
-def rescale_views(cameras: Cameras, images: np.ndarray, masks: Optional[np.ndarray], factor: float
-                  ) -> Tuple[Cameras, np.ndarray, Optional[np.ndarray]]:
+def rescale_views(cameras: Cameras, images: np.ndarray, masks: np.ndarray | None, factor: float
+                  ) -> tuple[Cameras, np.ndarray, np.ndarray | None]:
     """Cameras, images ``[n, H, W, 3]`` and masks ``[n, H, W, 1]`` resized by ``factor`` (1: unchanged)."""
     if factor == 1.0:
         return cameras, images, masks

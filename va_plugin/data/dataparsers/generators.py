@@ -11,9 +11,10 @@ from __future__ import annotations
 
 import re
 import warnings
+from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence, Tuple, Type
+from typing import Any
 
 import numpy as np
 import torch
@@ -36,12 +37,12 @@ WONDER3D_LAYOUT = ("a folder with rgb_000_<view>.png for the views " + ", ".join
                    + " (optionally normals_000_<view>.png and masked_colors/rgb_000_<view>.png)")
 
 
-def image_files(folder: Path) -> List[Path]:
+def image_files(folder: Path) -> list[Path]:
     """The image files directly in ``folder``, sorted by name."""
     return sorted(p for p in Path(folder).iterdir() if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES)
 
 
-def split_strip(image: np.ndarray, count: int, where: str, layout: str) -> List[np.ndarray]:
+def split_strip(image: np.ndarray, count: int, where: str, layout: str) -> list[np.ndarray]:
     """``count`` square tiles side by side -> list of ``[H, H, C]``; a clear error for any other size."""
     height, width = image.shape[:2]
     if width != count * height:
@@ -49,7 +50,7 @@ def split_strip(image: np.ndarray, count: int, where: str, layout: str) -> List[
     return [image[:, k * height:(k + 1) * height] for k in range(count)]
 
 
-def split_grid(image: np.ndarray, rows: int, columns: int, where: str, layout: str) -> List[np.ndarray]:
+def split_grid(image: np.ndarray, rows: int, columns: int, where: str, layout: str) -> list[np.ndarray]:
     """A grid of ``rows x columns`` square tiles, row-major -> list of ``[t, t, C]``."""
     height, width = image.shape[:2]
     tile = width // columns
@@ -64,7 +65,7 @@ class GeneratorDataParserConfig(DataParserConfig):
 
     scene_radius: float = 0.9
     """Radius of the bounding sphere; the object is brought into the unit box, whose corners are at 0.87."""
-    masks: Optional[Path] = None
+    masks: Path | None = None
     """Masks that override the colour key and any alpha: a folder with one image per view (view order), or
     one image with the same layout as the input. White (or opaque) is the object."""
     colour_key: ColourKey = field(default_factory=ColourKey)
@@ -83,8 +84,8 @@ class _Views:
     images: np.ndarray  # [n, H, W, 3]
     masks: np.ndarray  # [n, H, W, 1]
     cameras: Cameras
-    paths: List[Path]
-    metadata: Dict[str, Any]
+    paths: list[Path]
+    metadata: dict[str, Any]
 
 
 class GeneratorDataParser(DataParser):
@@ -96,32 +97,32 @@ class GeneratorDataParser(DataParser):
 
     def __init__(self, config: GeneratorDataParserConfig) -> None:
         super().__init__(config)
-        self._views: Optional[_Views] = None
+        self._views: _Views | None = None
 
     # -- what a generator defines ---------------------------------------------------------------------
-    def read_tiles(self) -> Tuple[List[np.ndarray], List[str], List[Path]]:
+    def read_tiles(self) -> tuple[list[np.ndarray], list[str], list[Path]]:
         """The views as ``[t, t, 3|4]`` arrays, a name for each (for messages) and the file each came from."""
         raise NotImplementedError
 
-    def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
+    def split_image(self, image: np.ndarray, where: str) -> list[np.ndarray]:
         """Tiles of one image in this generator's layout (for mask images given in that layout)."""
         raise DataError(f"{self.format_name} masks must be a folder with one image per view")
 
     def rig(self, tile_size: int) -> Cameras:
         raise NotImplementedError
 
-    def train_ids(self, count: int) -> List[int]:
+    def train_ids(self, count: int) -> list[int]:
         return list(range(count))
 
-    def view_names(self) -> Optional[Sequence[str]]:
+    def view_names(self) -> Sequence[str] | None:
         """Names that identify each view in a file name, when the generator names its files by view."""
         return None
 
-    def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> Dict[str, Any]:
+    def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> dict[str, Any]:
         return {}
 
     # -- shared -------------------------------------------------------------------------------------
-    def _user_masks(self, count: int, size: int) -> List[np.ndarray]:
+    def _user_masks(self, count: int, size: int) -> list[np.ndarray]:
         path = Path(self.config.masks)
         if path.is_file():
             tiles = self.split_image(read_image(path), str(path))
@@ -140,11 +141,11 @@ class GeneratorDataParser(DataParser):
             masks.append(mask_from_image(tile))
         return masks
 
-    def _mask_files(self, folder: Path, count: int) -> List[Path]:
+    def _mask_files(self, folder: Path, count: int) -> list[Path]:
         files = image_files(folder)
         names = self.view_names()
         if names is not None:
-            by_view: Dict[str, List[Path]] = {view: [] for view in names}
+            by_view: dict[str, list[Path]] = {view: [] for view in names}
             for file in files:
                 # the longest view name the file name ends with ("front_right" before "right")
                 ends = [v for v in names if re.search(rf"(^|_){v}$", file.stem)]
@@ -177,7 +178,7 @@ class GeneratorDataParser(DataParser):
         else:
             if all(t.shape[2] == 4 for t in tiles):
                 warnings.warn(f"{self.config.data}: the alpha channel is opaque everywhere, so it holds no "
-                              "mask; the background is keyed out by its colour instead (or pass --masks)")
+                              "mask; the background is keyed out by its colour instead (or pass --masks)", stacklevel=2)
             rgb = [t[:, :, :3] for t in tiles]
             masks = [colour_key_mask(im, key, where=n) for im, n in zip(rgb, names)]
             images = [composite(im, m, background) for im, m in zip(rgb, masks)]
@@ -191,7 +192,7 @@ class GeneratorDataParser(DataParser):
         self._views = _Views(np.stack(images).astype(np.float32), masks_np, cameras, paths, metadata)
         return self._views
 
-    def _place(self, cameras: Cameras, masks: np.ndarray) -> Tuple[Cameras, Dict[str, Any]]:
+    def _place(self, cameras: Cameras, masks: np.ndarray) -> tuple[Cameras, dict[str, Any]]:
         """Check the rig against the masks' visual hull and, with ``normalize = "silhouettes"``, move the
         hull's box to the unit box at the origin."""
         mode = self.config.normalize
@@ -209,13 +210,13 @@ class GeneratorDataParser(DataParser):
         if sum(iou) / len(iou) < LOW_SILHOUETTE_IOU:
             warnings.warn(f"{self.config.data}: the masks agree poorly with the {self.format_name} rig (mean "
                           f"silhouette IoU {sum(iou) / len(iou):.2f}); check the format and rig options and "
-                          "the mask picture in the run folder")
+                          "the mask picture in the run folder", stacklevel=2)
         lower, upper = hull.bounds
         info = {"normalize": mode, "hull_bounds": [lower.tolist(), upper.tolist()],
                 "silhouette_iou": [round(v, 4) for v in iou]}
         return cameras, info
 
-    def get_outputs(self, split: str = "train") -> Optional[DataparserOutputs]:
+    def get_outputs(self, split: str = "train") -> DataparserOutputs | None:
         views = self._load()
         count = len(views.paths)
         train = self.train_ids(count)
@@ -253,7 +254,7 @@ def opaque(tile: np.ndarray) -> bool:
 class SyncDreamerDataParserConfig(GeneratorDataParserConfig):
     """A SyncDreamer output: one strip of 16 views on its 30-degree orbit."""
 
-    _target: Type = field(default_factory=lambda: SyncDreamerDataParser)
+    _target: type = field(default_factory=lambda: SyncDreamerDataParser)
     num_views: int = 16
     """Training views, uniform in azimuth from view 0 (4, 8, 12 or 16: all); the others are held out."""
     elevation_deg: float = rigs.RIG_ELEVATION_DEG
@@ -267,13 +268,13 @@ class SyncDreamerDataParser(SingleImageDataParser):
     format_name = "syncdreamer"
     layout = SYNCDREAMER_LAYOUT
 
-    def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
+    def split_image(self, image: np.ndarray, where: str) -> list[np.ndarray]:
         return split_strip(image, rigs.RIG_VIEWS, where, self.layout)
 
     def rig(self, tile_size: int) -> Cameras:
         return rigs.syncdreamer_rig(tile_size, self.config.elevation_deg, self.config.pixel_offset)
 
-    def train_ids(self, count: int) -> List[int]:
+    def train_ids(self, count: int) -> list[int]:
         return rigs.input_view_ids(self.config.num_views)
 
 
@@ -282,7 +283,7 @@ class SyncDreamerDataParser(SingleImageDataParser):
 class Zero123ppDataParserConfig(GeneratorDataParserConfig):
     """A Zero123++ output: a 3 x 2 grid of six views around the input view."""
 
-    _target: Type = field(default_factory=lambda: Zero123ppDataParser)
+    _target: type = field(default_factory=lambda: Zero123ppDataParser)
     rig: str = "v1.2"
     """Model version, which fixes elevations and field of view: v1.1 or v1.2."""
     normalize: str = "silhouettes"
@@ -294,7 +295,7 @@ class Zero123ppDataParser(SingleImageDataParser):
     format_name = "zero123pp"
     layout = ZERO123PP_LAYOUT
 
-    def split_image(self, image: np.ndarray, where: str) -> List[np.ndarray]:
+    def split_image(self, image: np.ndarray, where: str) -> list[np.ndarray]:
         return split_grid(image, 3, 2, where, self.layout)
 
     def rig(self, tile_size: int) -> Cameras:
@@ -306,7 +307,7 @@ class Zero123ppDataParser(SingleImageDataParser):
 class Wonder3DDataParserConfig(GeneratorDataParserConfig):
     """A Wonder3D output folder: six orthographic views (RGB, and normal maps when present)."""
 
-    _target: Type = field(default_factory=lambda: Wonder3DDataParser)
+    _target: type = field(default_factory=lambda: Wonder3DDataParser)
     ortho_scale: float = rigs.WONDER3D_ORTHO_SCALE
     """World units across an image (Wonder3D rendered with 1.35)."""
     normal_frame: str = "front"
@@ -315,7 +316,7 @@ class Wonder3DDataParserConfig(GeneratorDataParserConfig):
     """Fit the masks' visual hull into the unit box."""
 
 
-def wonder3d_file(folder: Path, prefix: str, view: str) -> Optional[Path]:
+def wonder3d_file(folder: Path, prefix: str, view: str) -> Path | None:
     """``<prefix>_<index>_<view>.<ext>`` (or ``<prefix>_<view>``) in ``folder``, or None."""
     if not folder.is_dir():
         return None
@@ -353,7 +354,7 @@ class Wonder3DDataParser(GeneratorDataParser):
     def rig(self, tile_size: int) -> Cameras:
         return rigs.wonder3d_rig(tile_size, self.config.ortho_scale)
 
-    def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> Dict[str, Any]:
+    def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> dict[str, Any]:
         """World-space normal maps ``[6, H, W, 3]`` (zero outside their alpha) when the folder has them."""
         if self.config.normal_frame not in ("front", "view"):
             raise ConfigError(f"normal_frame must be front or view, got {self.config.normal_frame!r}")

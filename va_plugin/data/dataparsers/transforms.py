@@ -14,7 +14,7 @@ import json
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Type
+from typing import Any
 
 import numpy as np
 import torch
@@ -27,9 +27,9 @@ from va_plugin.errors import DataError
 SPLIT_FILES = {"train": "transforms_train.json", "test": "transforms_test.json"}
 
 
-def _load_json(path: Path) -> Dict[str, Any]:
+def _load_json(path: Path) -> dict[str, Any]:
     try:
-        with open(path, "r", encoding="utf-8") as handle:
+        with open(path, encoding="utf-8") as handle:
             meta = json.load(handle)
     except json.JSONDecodeError as exc:
         raise DataError(f"{path} is not valid JSON ({exc.msg} at line {exc.lineno})") from None
@@ -40,7 +40,7 @@ def _load_json(path: Path) -> Dict[str, Any]:
     return meta
 
 
-def find_split_file(root: Path, split: str) -> Optional[Path]:
+def find_split_file(root: Path, split: str) -> Path | None:
     """The json for a split, or None when the scene has no such split."""
     if root.is_file():
         return root if split == "train" else None
@@ -64,7 +64,7 @@ def _resolve_image(json_dir: Path, file_path: str) -> Path:
     return path
 
 
-def _intrinsics(meta: Dict[str, Any], frame: Dict[str, Any], width: int, height: int, where: str):
+def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, where: str):
     """fx, fy, cx, cy of a frame from its own keys or the file's top-level keys."""
     def pick(key):
         return frame.get(key, meta.get(key))
@@ -89,13 +89,13 @@ def _intrinsics(meta: Dict[str, Any], frame: Dict[str, Any], width: int, height:
 class TransformsDataParserConfig(DataParserConfig):
     """Reads a scene in the ``transforms.json`` layout."""
 
-    _target: Type = field(default_factory=lambda: TransformsDataParser)
+    _target: type = field(default_factory=lambda: TransformsDataParser)
 
 
 class TransformsDataParser(DataParser):
     config: TransformsDataParserConfig
 
-    def get_outputs(self, split: str = "train") -> Optional[DataparserOutputs]:
+    def get_outputs(self, split: str = "train") -> DataparserOutputs | None:
         root = Path(self.config.data)
         json_path = find_split_file(root, split)
         if json_path is None:
@@ -115,7 +115,8 @@ class TransformsDataParser(DataParser):
             width = int(frame.get("w", meta.get("w", image.shape[1])))
             height = int(frame.get("h", meta.get("h", image.shape[0])))
             if (image.shape[1], image.shape[0]) != (width, height):
-                raise DataError(f"{path}: image is {image.shape[1]}x{image.shape[0]} but the json says {width}x{height}")
+                raise DataError(f"{path}: image is {image.shape[1]}x{image.shape[0]} "
+                                f"but the json says {width}x{height}")
             if size is None:
                 size = (width, height)
             elif size != (width, height):
@@ -156,8 +157,8 @@ class TransformsDataParser(DataParser):
             image_paths=paths, metadata=metadata)
 
 
-def frames_to_json(cameras: Cameras, file_paths: List[str], extra: Optional[Dict[str, Any]] = None
-                   ) -> Dict[str, Any]:
+def frames_to_json(cameras: Cameras, file_paths: list[str], extra: dict[str, Any] | None = None
+                   ) -> dict[str, Any]:
     """The inverse of the parser: a ``transforms.json`` dict for ``cameras`` (used by scene writers)."""
     gl = opengl_to_opencv(cameras.c2w)  # the flip is its own inverse
     frames = []

@@ -7,13 +7,13 @@ from va_plugin.data.scenes.inconsistency import KINDS, LEVELS, InconsistencySpec
 from va_plugin.data.scenes.shapes import list_objects
 
 __all__ = [
-    "SCENE_VERSION",
-    "build_scene",
-    "build_procedural_scene",
-    "ensure_default_scene",
-    "inputs_figure",
     "KINDS",
     "LEVELS",
+    "SCENE_VERSION",
     "InconsistencySpec",
+    "build_procedural_scene",
+    "build_scene",
+    "ensure_default_scene",
+    "inputs_figure",
     "list_objects",
 ]

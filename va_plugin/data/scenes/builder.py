@@ -16,23 +16,29 @@ The same arguments always give the same bytes.
 from __future__ import annotations
 
 import json
+from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any
 
 import numpy as np
-import torch
 
 from va_plugin.data.dataparsers.transforms import frames_to_json
 from va_plugin.data.images import write_image
 from va_plugin.data.scenes import gso
-from va_plugin.data.scenes.inconsistency import (AMPLITUDES, KINDS, LEVEL_SCALE, InconsistencySpec,
-                                                 draw_perturbation, mean_of)
+from va_plugin.data.scenes.inconsistency import (
+    AMPLITUDES,
+    KINDS,
+    LEVEL_SCALE,
+    InconsistencySpec,
+    draw_perturbation,
+    mean_of,
+)
 from va_plugin.data.scenes.rig import RIG_VIEWS, benchmark_cameras, input_view_ids, view_angles
 from va_plugin.data.scenes.sources import ImageSource, SceneSource, load_source
+from va_plugin.errors import ConfigError
 from va_plugin.eval import psnr
 from va_plugin.utils.threads import single_thread
-from va_plugin.errors import ConfigError
 
 SCENE_VERSION = 2  # 1: consistent mug only; 2: sources, inconsistency, measured errors
 SCENE_RADIUS = 0.9  # the unit box's corners are at 0.866 from the origin
@@ -50,7 +56,7 @@ def on_white(rgba: np.ndarray) -> np.ndarray:
     return rgba[:, :, :3] * rgba[:, :, 3:] + WHITE * (1.0 - rgba[:, :, 3:])
 
 
-def lpips_unavailable(resolution: int) -> Optional[str]:
+def lpips_unavailable(resolution: int) -> str | None:
     """Why LPIPS cannot be measured here, or None when it can."""
     from va_plugin.eval.lpips import MIN_SIDE, LPIPSWeightsMissing, weight_paths
 
@@ -63,10 +69,10 @@ def lpips_unavailable(resolution: int) -> Optional[str]:
     return None
 
 
-def measure_error(inconsistent: np.ndarray, clean: np.ndarray, with_lpips: bool) -> Dict[str, Optional[float]]:
+def measure_error(inconsistent: np.ndarray, clean: np.ndarray, with_lpips: bool) -> dict[str, float | None]:
     """PSNR (dB) and LPIPS-Alex of an input against its clean view, 8-bit images composited on white."""
     a, b = on_white(quantise(inconsistent)), on_white(quantise(clean))
-    out: Dict[str, Optional[float]] = {"psnr": round(psnr(a, b), 3), "lpips": None}
+    out: dict[str, float | None] = {"psnr": round(psnr(a, b), 3), "lpips": None}
     if with_lpips:
         from va_plugin.eval import lpips
 
@@ -74,7 +80,7 @@ def measure_error(inconsistent: np.ndarray, clean: np.ndarray, with_lpips: bool)
     return out
 
 
-def split_views(source: SceneSource, n_views: int, test_views: Optional[Sequence[int]]):
+def split_views(source: SceneSource, n_views: int, test_views: Sequence[int] | None):
     """Input view ids, and held-out view ids (``test_views`` picks among them by position)."""
     train_ids = input_view_ids(n_views)
     all_ids = range(len(view_angles(extra=source.renderable)))
@@ -91,7 +97,7 @@ def _clear_images(out_dir: Path) -> None:
             path.unlink()
 
 
-def _write_split(out_dir: Path, split: str, cameras, ids: List[int], images: Dict[int, np.ndarray]) -> None:
+def _write_split(out_dir: Path, split: str, cameras, ids: list[int], images: dict[int, np.ndarray]) -> None:
     paths = []
     for i in ids:
         rel = f"images/{split}_{i:03d}.png"
@@ -101,7 +107,7 @@ def _write_split(out_dir: Path, split: str, cameras, ids: List[int], images: Dic
     (out_dir / f"transforms_{split}.json").write_text(json.dumps(meta, indent=1))
 
 
-def _inconsistency_info(spec: InconsistencySpec, per_view: List[Dict[str, Any]], lpips_note: Optional[str]):
+def _inconsistency_info(spec: InconsistencySpec, per_view: list[dict[str, Any]], lpips_note: str | None):
     perturbed = [v for v in per_view if v["perturbed"]] or per_view
     return {"kinds": list(spec.kinds), "level": spec.level, "level_scale": LEVEL_SCALE[spec.level],
             "clean_views": list(spec.clean_views), "level2_amplitudes": asdict(AMPLITUDES),
@@ -114,9 +120,9 @@ def _inconsistency_info(spec: InconsistencySpec, per_view: List[Dict[str, Any]],
 
 def build_scene(out_dir: Path, source: str = "procedural:mug", n_views: int = 4, level: int = 2,
                 kinds: Sequence[str] | str = KINDS, seed: int = 42, resolution: int = 256,
-                data_root: Optional[Path] = None, mesh_resolution: int = 160,
-                test_views: Optional[List[int]] = None, perturb_first_view: bool = False,
-                up_axis: str = "y", yaw_deg: float = 0.0, texture: Optional[Path] = None,
+                data_root: Path | None = None, mesh_resolution: int = 160,
+                test_views: list[int] | None = None, perturb_first_view: bool = False,
+                up_axis: str = "y", yaw_deg: float = 0.0, texture: Path | None = None,
                 gso_off_rig: bool = False) -> Path:
     """Build a benchmark scene folder (see the module docstring); returns the folder.
 
@@ -149,8 +155,8 @@ def build_scene(out_dir: Path, source: str = "procedural:mug", n_views: int = 4,
     return out_dir
 
 
-def make_inputs(src: SceneSource, cameras, spec: InconsistencySpec, train_ids: List[int],
-                clean: Dict[int, np.ndarray], with_lpips: bool):
+def make_inputs(src: SceneSource, cameras, spec: InconsistencySpec, train_ids: list[int],
+                clean: dict[int, np.ndarray], with_lpips: bool):
     """The input views ``{id: [H, W, 4]}`` and, per view, the drawn perturbation and its measured error."""
     inputs, per_view = {}, []
     for i in train_ids:
@@ -161,8 +167,8 @@ def make_inputs(src: SceneSource, cameras, spec: InconsistencySpec, train_ids: L
     return inputs, per_view
 
 
-def write_images(out_dir: Path, cameras, train_ids: List[int], test_ids: List[int],
-                 inputs: Dict[int, np.ndarray], clean: Dict[int, np.ndarray]) -> None:
+def write_images(out_dir: Path, cameras, train_ids: list[int], test_ids: list[int],
+                 inputs: dict[int, np.ndarray], clean: dict[int, np.ndarray]) -> None:
     """The images and both transforms files (no test split when nothing is held out)."""
     (out_dir / "images").mkdir(parents=True, exist_ok=True)
     _clear_images(out_dir)
@@ -178,7 +184,7 @@ def write_images(out_dir: Path, cameras, train_ids: List[int], test_ids: List[in
 
 def _scene_info(src: SceneSource, cameras, spec: InconsistencySpec, train_ids, test_ids, per_view, lpips_note):
     angles = view_angles(extra=src.renderable)
-    info: Dict[str, Any] = {
+    info: dict[str, Any] = {
         "version": SCENE_VERSION, "source": src.spec, "description": src.description, "source_info": src.info(),
         "rig": "syncdreamer", "resolution": cameras.width, "pixel_offset": cameras.pixel_offset,
         "train_views": train_ids, "test_views": test_ids,
@@ -200,7 +206,7 @@ def _scene_info(src: SceneSource, cameras, spec: InconsistencySpec, train_ids, t
 
 
 def build_procedural_scene(out_dir: Path, name: str = "mug", n_views: int = 4, resolution: int = 256,
-                           seed: int = 42, mesh_resolution: int = 160, test_views: Optional[List[int]] = None,
+                           seed: int = 42, mesh_resolution: int = 160, test_views: list[int] | None = None,
                            level: int = 0, kinds: Sequence[str] | str = KINDS,
                            perturb_first_view: bool = False) -> Path:
     """A procedural object's scene; consistent (level 0) unless ``level`` says otherwise."""

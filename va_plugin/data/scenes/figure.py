@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import Dict, List, Optional
 
 import cv2
 import numpy as np
@@ -34,18 +33,18 @@ def _label(tile: np.ndarray, text: str) -> np.ndarray:
     return out
 
 
-def _per_view(info: Dict) -> Dict[int, Dict]:
+def _per_view(info: dict) -> dict[int, dict]:
     return {v["view"]: v for v in info.get("inconsistency", {}).get("per_view", [])}
 
 
-def inputs_figure(scene_dir: Path, path: Path, tile_size: Optional[int] = None) -> Path:
+def inputs_figure(scene_dir: Path, path: Path, tile_size: int | None = None) -> Path:
     """Write a PNG: top row the clean input views, bottom row the scene's inputs with their PSNR / LPIPS."""
     scene_dir = Path(scene_dir)
     info_path = scene_dir / "scene.json"
     if not info_path.is_file():
         raise DataError(f"not a benchmark scene (no scene.json): {scene_dir}")
     info = json.loads(info_path.read_text())
-    views: List[int] = info["train_views"]
+    views: list[int] = info["train_views"]
     size = tile_size or int(info["resolution"])
     level = info["inconsistency"]["level"]
     errors = _per_view(info)

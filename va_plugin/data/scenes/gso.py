@@ -10,7 +10,6 @@ from __future__ import annotations
 
 import json
 from pathlib import Path
-from typing import List
 
 import cv2
 import numpy as np
@@ -34,7 +33,7 @@ def check_root(root: Path) -> Path:
     return root
 
 
-def list_objects(root: Path) -> List[str]:
+def list_objects(root: Path) -> list[str]:
     """Names of the objects under ``root`` that have a mesh."""
     root = check_root(root)
     return sorted(p.name for p in root.iterdir() if (p / "model.obj").is_file())
@@ -88,7 +87,7 @@ def load_renders(root: Path, name: str, resolution: int = GSO_RESOLUTION) -> np.
     return np.stack(images)
 
 
-def silhouette_iou(mesh: trimesh.Trimesh, cameras: Cameras, alphas: np.ndarray) -> List[float]:
+def silhouette_iou(mesh: trimesh.Trimesh, cameras: Cameras, alphas: np.ndarray) -> list[float]:
     """IoU per view between the mesh's projected silhouette and ``alpha > 0.5`` (``alphas [n, H, W]``):
     the check that mesh, renders and rig conventions agree."""
     renderer = MeshRenderer(mesh, lambda hits: np.zeros((len(hits.points), 3), np.float32))

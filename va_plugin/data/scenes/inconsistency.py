@@ -14,8 +14,8 @@ Levels 0-3 scale one set of random draws per view (0: the clean render). Every d
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, field
-from typing import Dict, List, Optional, Sequence, Tuple
 
 import cv2
 import numpy as np
@@ -34,7 +34,7 @@ class Amplitudes:
     render at 256 px, like real SyncDreamer views."""
 
     displacement: float = 0.0065      # RMS vertex displacement, world units (objects are 1 unit large)
-    cycles: Tuple[float, float] = (0.5, 1.5)  # spatial frequency range of the field, cycles per unit
+    cycles: tuple[float, float] = (0.5, 1.5)  # spatial frequency range of the field, cycles per unit
     modes: int = 4                    # sine modes summed in the field
     orbit_deg: float = 0.8            # std of the azimuth and elevation errors
     roll_deg: float = 0.5             # std of the roll about the optical axis
@@ -42,7 +42,7 @@ class Amplitudes:
     offset: float = 0.015             # std of the per-channel colour offset
     blobs: int = 3                    # hallucinated blobs per view
     blob_opacity: float = 0.8
-    blob_radius: Tuple[float, float] = (0.04, 0.08)  # as a fraction of the image side
+    blob_radius: tuple[float, float] = (0.04, 0.08)  # as a fraction of the image side
     blur_px: float = 1.6              # gaussian sigma of the generator's softness, pixels at 256 px
 
 
@@ -53,10 +53,10 @@ AMPLITUDES = Amplitudes()
 class InconsistencySpec:
     """Which kinds, how strong, and which input views stay clean."""
 
-    kinds: Tuple[str, ...] = KINDS
+    kinds: tuple[str, ...] = KINDS
     level: int = 2
     seed: int = 42
-    clean_views: Tuple[int, ...] = (0,)
+    clean_views: tuple[int, ...] = (0,)
 
     def __post_init__(self) -> None:
         self.kinds = parse_kinds(self.kinds)
@@ -70,7 +70,7 @@ class InconsistencySpec:
         return self.active and view not in self.clean_views
 
 
-def parse_kinds(kinds) -> Tuple[str, ...]:
+def parse_kinds(kinds) -> tuple[str, ...]:
     """Kinds from a comma-separated string or a sequence, in canonical order; ``none`` or empty: no kind."""
     items = [k.strip() for k in kinds.split(",")] if isinstance(kinds, str) else [str(k).strip() for k in kinds]
     items = [k for k in items if k and k != "none"]
@@ -105,7 +105,7 @@ class DisplacementField:
     amplitudes: np.ndarray  # [m, dim], scaled so the field's RMS over random positions is ``rms``
 
     @staticmethod
-    def draw(rng: np.random.Generator, dim: int, rms: float, amp: Amplitudes = AMPLITUDES) -> "DisplacementField":
+    def draw(rng: np.random.Generator, dim: int, rms: float, amp: Amplitudes = AMPLITUDES) -> DisplacementField:
         directions = rng.normal(size=(amp.modes, dim))
         directions /= np.linalg.norm(directions, axis=-1, keepdims=True)
         frequencies = directions * rng.uniform(*amp.cycles, size=(amp.modes, 1))
@@ -133,7 +133,7 @@ class Blob:
     ragged: np.ndarray            # [3] amplitude, lobes, phase of the outline's wobble
 
     @staticmethod
-    def draw(rng: np.random.Generator, amp: Amplitudes = AMPLITUDES) -> "Blob":
+    def draw(rng: np.random.Generator, amp: Amplitudes = AMPLITUDES) -> Blob:
         waves = np.stack([rng.uniform(0.0, np.pi, 3), rng.uniform(0.4, 1.0, 3), rng.uniform(0, 2 * np.pi, 3)], -1)
         return Blob(where=float(rng.random()), radius=float(rng.uniform(*amp.blob_radius)),
                     sources=rng.random(2), tint=rng.normal(scale=0.08, size=(2, 3)).astype(np.float32),
@@ -147,18 +147,18 @@ class ViewPerturbation:
 
     view: int
     level: int
-    displacement: Optional[DisplacementField] = None   # world units, 3-d (meshes) and 2-d (images)
-    displacement_2d: Optional[DisplacementField] = None
-    orbit_deg: Optional[Tuple[float, float, float]] = None  # azimuth, elevation, roll errors
-    gain: Optional[np.ndarray] = None                  # [3]
-    offset: Optional[np.ndarray] = None                # [3]
-    blobs: List[Blob] = field(default_factory=list)
+    displacement: DisplacementField | None = None   # world units, 3-d (meshes) and 2-d (images)
+    displacement_2d: DisplacementField | None = None
+    orbit_deg: tuple[float, float, float] | None = None  # azimuth, elevation, roll errors
+    gain: np.ndarray | None = None                  # [3]
+    offset: np.ndarray | None = None                # [3]
+    blobs: list[Blob] = field(default_factory=list)
     blob_opacity: float = 0.0
     blur: float = 0.0                                  # sigma as a fraction of the image side
 
-    def summary(self) -> Dict[str, object]:
+    def summary(self) -> dict[str, object]:
         """JSON-ready sizes of what was drawn (the measured image error is reported separately)."""
-        out: Dict[str, object] = {}
+        out: dict[str, object] = {}
         if self.displacement is not None:
             out["displacement_rms"] = _round(np.sqrt(0.5 * (self.displacement.amplitudes**2).sum()))
         if self.orbit_deg is not None:
@@ -175,7 +175,7 @@ def _round(value: float, digits: int = 4) -> float:
     return round(float(value), digits)
 
 
-def draw_perturbation(spec: InconsistencySpec, view: int, amp: Optional[Amplitudes] = None) -> ViewPerturbation:
+def draw_perturbation(spec: InconsistencySpec, view: int, amp: Amplitudes | None = None) -> ViewPerturbation:
     """The perturbation of rig view ``view`` under ``spec`` (an empty one for clean views)."""
     amp = AMPLITUDES if amp is None else amp
     out = ViewPerturbation(view, spec.level)
@@ -195,8 +195,8 @@ def draw_perturbation(spec: InconsistencySpec, view: int, amp: Optional[Amplitud
         out.gain = (1.0 + rng.normal(size=3) * amp.gain * s).astype(np.float32)
         out.offset = (rng.normal(size=3) * amp.offset * s).astype(np.float32)
         # Draw the most blobs any level uses, so that a level takes a prefix of the same list.
-        pool = [Blob.draw(rng, amp) for _ in range(int(round(amp.blobs * LEVEL_SCALE[max(LEVELS)])))]
-        out.blobs = pool[:int(round(amp.blobs * s))]
+        pool = [Blob.draw(rng, amp) for _ in range(round(amp.blobs * LEVEL_SCALE[max(LEVELS)]))]
+        out.blobs = pool[:round(amp.blobs * s)]
         out.blob_opacity = amp.blob_opacity * min(1.0, s)
         out.blur = amp.blur_px / 256.0 * s * float(rng.uniform(0.7, 1.3))
     return out
@@ -204,7 +204,7 @@ def draw_perturbation(spec: InconsistencySpec, view: int, amp: Optional[Amplitud
 
 # --- image-space operations ---------------------------------------------------------------------------------
 
-def _blob_weight(blob: Blob, centre: Tuple[float, float], height: int, width: int) -> np.ndarray:
+def _blob_weight(blob: Blob, centre: tuple[float, float], height: int, width: int) -> np.ndarray:
     """Soft, ragged disc ``[H, W]`` in [0, 1] around ``centre`` (row, col)."""
     rows, cols = np.mgrid[0:height, 0:width].astype(np.float32)
     dy, dx = rows - centre[0], cols - centre[1]
@@ -299,6 +299,6 @@ def perturbed_vertices(vertices: np.ndarray, p: ViewPerturbation) -> np.ndarray:
     return (vertices + p.displacement(vertices)).astype(np.float32)
 
 
-def mean_of(values: Sequence[Optional[float]]) -> Optional[float]:
+def mean_of(values: Sequence[float | None]) -> float | None:
     present = [v for v in values if v is not None]
     return _round(np.mean(present)) if present else None

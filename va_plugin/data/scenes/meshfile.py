@@ -8,7 +8,6 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Optional
 
 import numpy as np
 import trimesh
@@ -29,7 +28,7 @@ class TexturedMesh:
     render_mesh: trimesh.Trimesh
     albedo: Albedo
     ground_truth: trimesh.Trimesh
-    texture_path: Optional[Path]
+    texture_path: Path | None
 
 
 def up_to_z(up_axis: str) -> np.ndarray:
@@ -48,7 +47,7 @@ def normalise_vertices(vertices: np.ndarray) -> np.ndarray:
     return (vertices - 0.5 * (low + high)) * scale
 
 
-def find_texture(path: Path, mesh: trimesh.Trimesh) -> Optional[Path]:
+def find_texture(path: Path, mesh: trimesh.Trimesh) -> Path | None:
     """The texture image of a mesh file: the material's own file, ``<stem>.png`` or ``<stem>_texture.png``,
     or else the only image in the file's folder."""
     material = getattr(getattr(mesh, "visual", None), "material", None)
@@ -76,7 +75,7 @@ def _load_mesh(path: Path) -> trimesh.Trimesh:
     return mesh
 
 
-def _albedo(mesh: trimesh.Trimesh, texture: Optional[Path]) -> Albedo:
+def _albedo(mesh: trimesh.Trimesh, texture: Path | None) -> Albedo:
     uv = getattr(mesh.visual, "uv", None)
     if texture is not None and uv is not None and len(uv) == len(mesh.vertices):
         return UVTexture(uv, read_image(texture)[:, :, :3])
@@ -86,7 +85,7 @@ def _albedo(mesh: trimesh.Trimesh, texture: Optional[Path]) -> Albedo:
     return lambda hits: np.broadcast_to(PLAIN_GREY, (len(hits.points), 3)).copy()
 
 
-def load_textured_mesh(path: Path, texture: Optional[Path] = None, up_axis: str = "y",
+def load_textured_mesh(path: Path, texture: Path | None = None, up_axis: str = "y",
                        yaw_deg: float = 0.0) -> TexturedMesh:
     """Read a mesh file, bring it into the benchmark frame, and attach its texture."""
     path = Path(path)

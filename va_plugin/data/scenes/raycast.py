@@ -5,8 +5,8 @@ Materials see the *rest* surface, so on deformed vertices the texture moves with
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from typing import Callable, Optional, Tuple
 
 import numpy as np
 import torch
@@ -79,7 +79,7 @@ class MeshRenderer:
     (``SurfaceHits -> [n, 3]`` in [0, 1]) sees the rest ``mesh``; optional deformed ``vertices [v, 3]``
     give the geometry."""
 
-    def __init__(self, mesh: trimesh.Trimesh, albedo: Albedo, vertices: Optional[np.ndarray] = None) -> None:
+    def __init__(self, mesh: trimesh.Trimesh, albedo: Albedo, vertices: np.ndarray | None = None) -> None:
         self.mesh = mesh
         self.albedo = albedo
         self.faces = np.asarray(mesh.faces, dtype=np.int64)
@@ -89,11 +89,11 @@ class MeshRenderer:
         self.scene.add_triangles(o3d.core.Tensor(self.vertices), o3d.core.Tensor(self.faces.astype(np.uint32)))
         self.vertex_normals = smooth_vertex_normals(self.vertices, self.faces)
 
-    def deformed(self, vertices: np.ndarray) -> "MeshRenderer":
+    def deformed(self, vertices: np.ndarray) -> MeshRenderer:
         """The same mesh and material with its vertices moved to ``vertices [v, 3]``."""
         return MeshRenderer(self.mesh, self.albedo, vertices)
 
-    def cast(self, origins: np.ndarray, directions: np.ndarray) -> Tuple[np.ndarray, np.ndarray, np.ndarray]:
+    def cast(self, origins: np.ndarray, directions: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """Hit distance ``[n]`` (inf on a miss), face ids ``[n]`` and barycentrics ``[n, 3]`` of rays ``[n, 3]``."""
         rays = o3d.core.Tensor(np.concatenate([origins, directions], -1).astype(np.float32))
         result = self.scene.cast_rays(rays)
@@ -112,7 +112,7 @@ class MeshRenderer:
         return np.clip(albedo * (AMBIENT + (1.0 - AMBIENT) * diffuse), 0.0, 1.0)
 
     def pixel_rays(self, cameras: Cameras, index: int, dy: float = 0.0, dx: float = 0.0
-                   ) -> Tuple[np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray]:
         """World rays ``[H*W, 3]`` through every pixel of view ``index``, shifted by ``(dy, dx)`` pixels."""
         _, rows, cols = cameras.pixel_grid(index)
         idx = torch.full_like(rows, index)

@@ -9,19 +9,24 @@ masks match only then), so benchmark scenes use :data:`SCENE_PIXEL_OFFSET` (0.5)
 
 from __future__ import annotations
 
-from typing import List, Tuple
-
 from va_plugin.cameras import Cameras
-from va_plugin.data.rigs import (RIG_DISTANCE, RIG_ELEVATION_DEG, RIG_FOCAL_256, RIG_VIEWS,  # noqa: F401
-                                 input_view_ids, orbit_cameras, syncdreamer_rig)
+from va_plugin.data.rigs import (  # noqa: F401
+    RIG_DISTANCE,
+    RIG_ELEVATION_DEG,
+    RIG_FOCAL_256,
+    RIG_VIEWS,
+    input_view_ids,
+    orbit_cameras,
+    syncdreamer_rig,
+)
 
 SCENE_PIXEL_OFFSET = 0.5
 # Held-out views off the rig's orbit, for sources we can render: below and above the inputs' elevation.
-EXTRA_TEST_VIEWS: Tuple[Tuple[float, float], ...] = tuple(
+EXTRA_TEST_VIEWS: tuple[tuple[float, float], ...] = tuple(
     (azimuth, elevation) for elevation in (0.0, 45.0) for azimuth in (45.0, 135.0, 225.0, 315.0))
 
 
-def view_angles(extra: bool = True) -> List[Tuple[float, float]]:
+def view_angles(extra: bool = True) -> list[tuple[float, float]]:
     """``(azimuth_deg, elevation_deg)`` of the benchmark views: the 16 rig views (ids 0-15), then with
     ``extra`` the :data:`EXTRA_TEST_VIEWS` (ids 16 on)."""
     rig = [(k * 360.0 / RIG_VIEWS, RIG_ELEVATION_DEG) for k in range(RIG_VIEWS)]

@@ -6,7 +6,7 @@ SDFs are not exact distances away from the surface, which is fine: only the zero
 
 from __future__ import annotations
 
-from typing import Callable, Sequence
+from collections.abc import Callable, Sequence
 
 import numpy as np
 import trimesh

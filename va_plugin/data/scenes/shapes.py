@@ -8,16 +8,29 @@ front (the robot's face) face +x, as the conditioning view of a generator would 
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
-from typing import Callable, Dict, List, Tuple
 
 import numpy as np
 import trimesh
 
-from va_plugin.data.scenes.sdf import (SDF, intersect, length, mesh_from_sdf, sd_box, sd_capped_cylinder,
-                                       sd_capsule, sd_cone_frustum, sd_polyline_tube, sd_sphere, sd_torus,
-                                       subtract, to_local, union)
+from va_plugin.data.scenes.sdf import (
+    SDF,
+    intersect,
+    length,
+    mesh_from_sdf,
+    sd_box,
+    sd_capped_cylinder,
+    sd_capsule,
+    sd_cone_frustum,
+    sd_polyline_tube,
+    sd_sphere,
+    sd_torus,
+    subtract,
+    to_local,
+    union,
+)
 from va_plugin.errors import ConfigError
 
 Texture = Callable[[np.ndarray], np.ndarray]
@@ -74,7 +87,7 @@ KNOT_SAMPLES = 4000
 
 
 @lru_cache(maxsize=1)
-def _knot_curve() -> Tuple[np.ndarray, np.ndarray]:
+def _knot_curve() -> tuple[np.ndarray, np.ndarray]:
     """A (2, 3) torus knot (trefoil): samples ``[m, 3]`` and their curve parameters ``[m]`` in [0, 1)."""
     t = np.arange(KNOT_SAMPLES, dtype=np.float64) / KNOT_SAMPLES
     phi = 2.0 * np.pi * t
@@ -250,7 +263,7 @@ class ProceduralObject:
     texture: Texture
 
 
-OBJECTS: Dict[str, ProceduralObject] = {obj.name: obj for obj in [
+OBJECTS: dict[str, ProceduralObject] = {obj.name: obj for obj in [
     ProceduralObject("mug", "hollow cylinder with a ring handle: genus 1, a concavity, banded texture",
                      mug_sdf, mug_texture),
     ProceduralObject("knot", "trefoil torus-knot tube: genus 1, thin self-occluding strands, fine bands",
@@ -268,7 +281,7 @@ OBJECTS: Dict[str, ProceduralObject] = {obj.name: obj for obj in [
 ]}
 
 
-def list_objects() -> List[Tuple[str, str]]:
+def list_objects() -> list[tuple[str, str]]:
     """``(name, one-line description)`` of every procedural object."""
     return [(obj.name, obj.description) for obj in OBJECTS.values()]
 

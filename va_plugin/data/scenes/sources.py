@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import math
 from pathlib import Path
-from typing import Any, Dict, Optional
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -19,8 +19,14 @@ from scipy import ndimage
 
 from va_plugin.cameras import Cameras, look_at
 from va_plugin.data.scenes import gso, meshfile, shapes
-from va_plugin.data.scenes.inconsistency import (ViewPerturbation, apply_appearance, compose_maps,
-                                                 displacement_map, perturbed_vertices, remap_rgba)
+from va_plugin.data.scenes.inconsistency import (
+    ViewPerturbation,
+    apply_appearance,
+    compose_maps,
+    displacement_map,
+    perturbed_vertices,
+    remap_rgba,
+)
 from va_plugin.data.scenes.raycast import MeshRenderer, position_albedo
 from va_plugin.data.scenes.rig import RIG_DISTANCE
 from va_plugin.errors import ConfigError
@@ -60,7 +66,7 @@ class SceneSource:
     description: str
     ground_truth: trimesh.Trimesh
     renderable: bool  # False: only the 16 rig views exist
-    _info: Dict[str, Any] = {}
+    _info: ClassVar[dict[str, Any]] = {}
 
     def clean(self, cameras: Cameras, view: int) -> np.ndarray:
         """Straight-alpha RGBA ``[H, W, 4]`` of view ``view``."""
@@ -70,7 +76,7 @@ class SceneSource:
         """The inconsistent version of view ``view``, ``[H, W, 4]``."""
         raise NotImplementedError
 
-    def info(self) -> Dict[str, Any]:
+    def info(self) -> dict[str, Any]:
         """Extra facts for scene.json."""
         return dict(self._info)
 
@@ -81,7 +87,7 @@ class RenderedSource(SceneSource):
     renderable = True
 
     def __init__(self, spec: str, description: str, renderer: MeshRenderer, ground_truth: trimesh.Trimesh,
-                 info: Optional[Dict[str, Any]] = None) -> None:
+                 info: dict[str, Any] | None = None) -> None:
         self.spec, self.description, self.renderer = spec, description, renderer
         self.ground_truth = ground_truth
         self._info = info or {}
@@ -102,14 +108,14 @@ class ImageSource(SceneSource):
     the rig show the mesh with a texture baked from the 16 renders (see :meth:`baked_renderer`)."""
 
     def __init__(self, spec: str, description: str, images: np.ndarray, ground_truth: trimesh.Trimesh,
-                 info: Optional[Dict[str, Any]] = None, off_rig: bool = False) -> None:
+                 info: dict[str, Any] | None = None, off_rig: bool = False) -> None:
         """``off_rig``: the source also renders the views off the rig (baked), so scenes hold them out too."""
         self.renderable = off_rig
         self.spec, self.description, self.images = spec, description, images
         self.ground_truth = ground_truth
         self.depth_renderer = MeshRenderer(ground_truth, lambda hits: np.zeros((len(hits.points), 3), np.float32))
         self._info = info or {}
-        self._baked: Optional[MeshRenderer] = None
+        self._baked: MeshRenderer | None = None
 
     def clean(self, cameras: Cameras, view: int) -> np.ndarray:
         if view < len(self.images):
@@ -149,7 +155,7 @@ class ImageSource(SceneSource):
         uv, _ = cameras.project(points, view)
         return uv.numpy().reshape(camera.height, camera.width, 2)
 
-    def sampling_map(self, cameras: Cameras, view: int, p: ViewPerturbation) -> Optional[np.ndarray]:
+    def sampling_map(self, cameras: Cameras, view: int, p: ViewPerturbation) -> np.ndarray | None:
         """Where each pixel of the perturbed view reads the clean render ``[H, W, 2]`` (the orbit error's
         map composed with the 2-D warp), or None when ``p`` moves nothing."""
         coords = None
@@ -179,8 +185,8 @@ def split_spec(spec: str):
     return kind, name
 
 
-def load_source(spec: str, resolution: int = 256, data_root: Optional[Path] = None, mesh_resolution: int = 160,
-                up_axis: str = "y", yaw_deg: float = 0.0, texture: Optional[Path] = None,
+def load_source(spec: str, resolution: int = 256, data_root: Path | None = None, mesh_resolution: int = 160,
+                up_axis: str = "y", yaw_deg: float = 0.0, texture: Path | None = None,
                 gso_off_rig: bool = False) -> SceneSource:
     """The source named by ``spec`` (see the module docstring); ``data_root`` is the GSO folder.
     ``gso_off_rig``: a GSO object renders views off the rig too (baked; the paper's protocol has none)."""

@@ -22,7 +22,8 @@ everywhere else and the reference the kernels are tested against.
 from __future__ import annotations
 
 import math
-from typing import List, NamedTuple, Optional, Sequence, Tuple
+from collections.abc import Sequence
+from typing import NamedTuple
 
 import torch
 import torch.nn.functional as F
@@ -39,13 +40,13 @@ HASH_PRIMES = (1, 2654435761, 805459861)
 CPU_CHUNK_POINTS = 16384
 
 
-def grid_resolutions(n_levels: int, base_resolution: int, max_resolution: int) -> List[int]:
+def grid_resolutions(n_levels: int, base_resolution: int, max_resolution: int) -> list[int]:
     """Cells per axis of each level: ``N_l = floor(base * b**l)``, ``b = exp((ln max - ln base) / (L - 1))``."""
     if n_levels == 1:
         return [base_resolution]
     growth = math.exp((math.log(max_resolution) - math.log(base_resolution)) / (n_levels - 1))
     # The epsilon keeps float round-off from dropping an exact integer (2048 -> 2047) under floor.
-    return [int(math.floor(base_resolution * growth**level + 1e-6)) for level in range(n_levels)]
+    return [math.floor(base_resolution * growth**level + 1e-6) for level in range(n_levels)]
 
 
 def is_dense_level(resolution: int, hashmap_size: int) -> bool:
@@ -53,17 +54,17 @@ def is_dense_level(resolution: int, hashmap_size: int) -> bool:
     return (resolution + 1) ** 3 <= hashmap_size
 
 
-def level_table_sizes(resolutions: Sequence[int], hashmap_size: int) -> List[int]:
+def level_table_sizes(resolutions: Sequence[int], hashmap_size: int) -> list[int]:
     """Entries of each level's table: the dense vertex count when it fits, else ``hashmap_size``."""
     return [(r + 1) ** 3 if is_dense_level(r, hashmap_size) else hashmap_size for r in resolutions]
 
 
-def level_offsets(sizes: Sequence[int]) -> List[int]:
+def level_offsets(sizes: Sequence[int]) -> list[int]:
     """Row of the shared table where each level starts."""
     return [sum(sizes[:level]) for level in range(len(sizes))]
 
 
-def index_multipliers(resolutions: Sequence[int], hashmap_size: int) -> List[List[int]]:
+def index_multipliers(resolutions: Sequence[int], hashmap_size: int) -> list[list[int]]:
     """Per-level, per-axis integer multipliers: row-major strides for dense levels, hash primes otherwise."""
     return [
         [1, r + 1, (r + 1) ** 2] if is_dense_level(r, hashmap_size) else list(HASH_PRIMES)
@@ -80,7 +81,7 @@ class GridLevels(NamedTuple):
     n_dense: int  # the first n_dense levels are dense, the rest hashed
     hashmap_size: int  # T, a power of two
 
-    def first(self, n: int) -> "GridLevels":
+    def first(self, n: int) -> GridLevels:
         """The ``n`` coarsest levels."""
         return GridLevels(
             self.resolutions[:n], self.multipliers[:n], self.offsets[:n], min(self.n_dense, n), self.hashmap_size
@@ -92,7 +93,7 @@ def normalise_points(x: torch.Tensor, bound: float) -> torch.Tensor:
     return ((x + bound) / (2.0 * bound)).clamp(0.0, 1.0)
 
 
-def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> Tuple[torch.Tensor, torch.Tensor]:
+def cell_corners(x01: torch.Tensor, resolutions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
     """The cell holding each point ``x01 [n_points, 3]`` (in ``[0, 1]``) on each level (``resolutions
     [n_levels]`` int64): ``cell [n_levels, 3, n_points]`` int64 lower corner in ``[0, N_l - 1]`` (a point
     at 1 falls in the last cell with fraction 1) and ``frac [n_levels, 3, n_points]`` in ``[0, 1]``,
@@ -141,7 +142,7 @@ def corner_weights(frac: torch.Tensor) -> torch.Tensor:
     return (wx * wy * wz).flatten(1, 3)
 
 
-def _corners(x01: torch.Tensor, levels: GridLevels) -> Tuple[torch.Tensor, torch.Tensor]:
+def _corners(x01: torch.Tensor, levels: GridLevels) -> tuple[torch.Tensor, torch.Tensor]:
     """Table rows ``[n_levels, 8, n_points]`` of every corner and the in-cell position ``frac``."""
     cell, frac = cell_corners(x01, levels.resolutions)
     indices = corner_indices(cell, levels).add_(levels.offsets[:, None, None])
@@ -248,9 +249,9 @@ def _backward_chunk(
     table: torch.Tensor,
     levels: GridLevels,
     grad_out: torch.Tensor,
-    grad_table: Optional[torch.Tensor],
+    grad_table: torch.Tensor | None,
     need_x: bool,
-) -> Optional[torch.Tensor]:
+) -> torch.Tensor | None:
     """Accumulate one chunk's table gradient into ``grad_table`` ``[F, total_entries]`` (if given) and
     return its point gradient ``[n_points, 3]`` (if ``need_x``); ``x01`` ``[n_points, 3]``, ``grad_out``
     ``[n_points, n_levels * F]``."""
@@ -347,7 +348,7 @@ class HashGridEncoding(nn.Module):
             raise ValueError(f"n_active must be in [0, {self.n_levels}], got {n_active}")
         self.n_active_levels = n_active
 
-    def forward(self, x: torch.Tensor, n_active_levels: Optional[int] = None) -> torch.Tensor:
+    def forward(self, x: torch.Tensor, n_active_levels: int | None = None) -> torch.Tensor:
         """Encode points ``x [..., 3]`` -> ``[..., output_dim]`` in the table's dtype, inactive levels'
         channels zero; ``n_active_levels`` overrides :attr:`n_active_levels` for this call."""
         n_active = self.n_active_levels if n_active_levels is None else n_active_levels

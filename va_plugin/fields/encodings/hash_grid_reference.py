@@ -7,7 +7,7 @@ primes. It is slow; use :class:`~va_plugin.fields.encodings.hash_grid.HashGridEn
 from __future__ import annotations
 
 import itertools
-from typing import Sequence
+from collections.abc import Sequence
 
 import torch
 

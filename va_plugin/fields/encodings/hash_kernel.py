@@ -19,7 +19,6 @@ import sys
 import threading
 import warnings
 from pathlib import Path
-from typing import List, Optional, Tuple
 
 import torch
 from torch.autograd.function import once_differentiable
@@ -56,7 +55,8 @@ def _build(verbose: bool):
         from torch.utils import cpp_extension
 
         if not _built_before(cpp_extension.get_default_build_root()):
-            print("compiling the hash grid's CPU kernels (once per machine, about a minute)", file=sys.stderr, flush=True)
+            print("compiling the hash grid's CPU kernels (once per machine, about a minute)", file=sys.stderr,
+                  flush=True)
         cpp_extension.load(name=NAME, sources=[str(SOURCE)], extra_cflags=list(CFLAGS), extra_ldflags=["-fopenmp"],
                            is_python_module=False, verbose=verbose)
         return torch.ops.va_hash_grid
@@ -89,7 +89,7 @@ def usable(x01: torch.Tensor, table: torch.Tensor, hashmap_size: int) -> bool:
             and load_kernels() is not None)
 
 
-def _level_args(levels) -> Tuple:
+def _level_args(levels) -> tuple:
     return (levels.resolutions, levels.multipliers.contiguous(), levels.offsets, int(levels.n_dense),
             int(levels.hashmap_size))
 
@@ -99,7 +99,7 @@ class _Pending:
     same scatter into the table (one pass over the table instead of one per function)."""
 
     def __init__(self) -> None:
-        self.pulls: List[Tuple[torch.Tensor, torch.Tensor]] = []
+        self.pulls: list[tuple[torch.Tensor, torch.Tensor]] = []
 
 
 class _Encode(torch.autograd.Function):

@@ -2,8 +2,6 @@
 
 from __future__ import annotations
 
-from typing import Optional
-
 import torch
 from torch import nn
 
@@ -47,7 +45,7 @@ class PositionalEncoding(nn.Module):
         return out + grad_encoding[..., :d] if self.include_input else out
 
 
-def optional_direction_encoding(frequencies: int) -> Optional[PositionalEncoding]:
+def optional_direction_encoding(frequencies: int) -> PositionalEncoding | None:
     """A colour network's view-direction encoding from its config value: -1 leaves the direction out
     (None), 0 feeds the raw direction, k > 0 adds k frequency bands."""
     if frequencies < -1:
