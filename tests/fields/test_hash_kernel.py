@@ -110,7 +110,9 @@ def test_the_thread_count_does_not_change_the_results(ops):
             results.append(_training_step(encoding, x, weights))
     finally:
         torch.set_num_threads(before)
-    for one, two in zip(*results):
+    # the kernels' outputs: the encoding, the pull-back and the table's gradient (the weights' gradient is
+    # torch's own matrix product, whose sum order follows the thread count on some CPUs)
+    for one, two in zip(results[0][:3], results[1][:3]):
         assert torch.equal(one, two)
 
 
