@@ -26,7 +26,7 @@ import time
 from concurrent.futures import ProcessPoolExecutor
 from multiprocessing import get_context
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
 import numpy as np
 
@@ -49,11 +49,11 @@ def build(root: Path, data_root: Path, name: str, views: int, level: int) -> Pat
                        gso_off_rig=True)
 
 
-def run_one(job: Dict[str, Any]) -> Dict[str, Any]:
+def run_one(job: dict[str, Any]) -> dict[str, Any]:
     """Train the default on one scene (one torch thread), then evaluate its final state."""
     import torch
 
-    from va_plugin.cli.run import load_run
+    from va_plugin.api import load_run
     from va_plugin.config import apply_override
     from va_plugin.engine.trainer import train_run
     from va_plugin.eval.evaluate import evaluate_run
@@ -70,7 +70,7 @@ def run_one(job: Dict[str, Any]) -> Dict[str, Any]:
         apply_override(config, override)
     started = time.perf_counter()
     train_run(config, resume=True)
-    pipeline, state = load_run(Path(job["run_dir"]), device="cpu")
+    pipeline, state = load_run(Path(job["run_dir"]), device="cpu").parts()
     result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
     wall = time.perf_counter() - started
     return {**{k: job[k] for k in ("key", "object", "views", "level")},
@@ -93,14 +93,15 @@ def texture_fidelity(scene: Path) -> float:
     scores = []
     for k in range(len(rig)):
         baked, real = renderer.render(rig, k), source.images[k]
-        scores.append(psnr(baked[..., :3] * baked[..., 3:] + 1 - baked[..., 3:], real[..., :3] * real[..., 3:] + 1 - real[..., 3:]))
+        scores.append(psnr(baked[..., :3] * baked[..., 3:] + 1 - baked[..., 3:],
+                           real[..., :3] * real[..., 3:] + 1 - real[..., 3:]))
     return float(np.mean(scores))
 
 
-def table(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]]) -> str:
+def table(rows: list[dict[str, Any]], configs: list[tuple[int, str]]) -> str:
     """Per object, each configuration's (view count, variant) row; then each configuration paired with the
     default at its view count (a variant) or with the first configuration (a view count)."""
-    name = lambda c: f"{c[0]} views" + (f" {c[1]}" if c[1] else "")  # noqa: E731
+    name = lambda c: f"{c[0]} views" + (f" {c[1]}" if c[1] else "")
     objects = sorted({r["object"] for r in rows})
     by = {(r["object"], r["views"], r.get("variant", "")): r for r in rows}
     lines = ["| object | " + " | ".join(f"{name(c)}: CD / IoU / PSNR / LPIPS / wall s" for c in configs) + " |",
@@ -114,8 +115,9 @@ def table(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]]) -> str:
         paired = [o for o in objects if (o, *base) in by and (o, *c) in by]
         if not paired:
             continue
-        ratio = lambda m: np.mean([by[(o, *c)][m] for o in paired]) / np.mean([by[(o, *base)][m] for o in paired])  # noqa: E731
-        diff = lambda m: np.mean([by[(o, *c)][m] - by[(o, *base)][m] for o in paired])  # noqa: E731
+        ratio = lambda m, c=c, base=base, paired=paired: (np.mean([by[(o, *c)][m] for o in paired])
+                                                          / np.mean([by[(o, *base)][m] for o in paired]))
+        diff = lambda m, c=c, base=base, paired=paired: np.mean([by[(o, *c)][m] - by[(o, *base)][m] for o in paired])
         better = sum(by[(o, *c)]["cd"] < by[(o, *base)]["cd"] for o in paired)
         worst_db = min(by[(o, *c)]["psnr"] - by[(o, *base)]["psnr"] for o in paired)
         worst_cd = max(by[(o, *c)]["cd"] / by[(o, *base)]["cd"] for o in paired)
@@ -132,7 +134,7 @@ def table(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]]) -> str:
     return "\n".join(lines) + "\n"
 
 
-def time_figure(rows: List[Dict[str, Any]], configs: List[Tuple[int, str]], path: Path) -> Optional[Path]:
+def time_figure(rows: list[dict[str, Any]], configs: list[tuple[int, str]], path: Path) -> Path | None:
     """Mean PSNR and mean CD against mean training seconds, one point per configuration, over the objects
     that every configuration has (None without matplotlib)."""
     try:
@@ -176,8 +178,8 @@ def main(argv=None) -> int:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("outputs/bench/all-views"))
     args = parser.parse_args(argv)
-    from va_plugin.data.scenes import gso
     from va_plugin.config import apply_override
+    from va_plugin.data.scenes import gso
     from va_plugin.errors import VAError
     from va_plugin.registry import get_method
 

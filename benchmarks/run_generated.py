@@ -4,10 +4,12 @@
         [--methods neus,va-neus] [--inputs aircraft_0,fox] [--steps N] [--threads 2] [--resume]
 
 Each run is the user's command, ``va-train METHOD --data FILE --export-mesh``, with default options,
-trained in this process by ``train_run`` as va-train trains it (format detected, the generator's documented rig). There is no ground truth for generated views, so what
+trained in this process by ``train_run`` as va-train trains it (format detected, the generator's documented rig).
+There is no ground truth for generated views, so what
 is recorded is the run time, the last training batch's PSNR (against the generator's own views), the
 PSNR of the shared path (the novel-view render the mesh comes from) at the training views against the
-inputs (half size, cached in ``RUN/train_views_psnr.json``), the rig check (silhouette IoU of the masks' visual hull) and, for ``va-neus``, whether the consistency test
+inputs (half size, cached in ``RUN/train_views_psnr.json``), the rig check (silhouette IoU of the masks' visual
+hull) and, for ``va-neus``, whether the consistency test
 ran the adaptive phases and the mean inconsistency per view. Writes into OUT:
 
 - ``runs/<input>-<method>/``: the run folders (mesh.ply, masks.png, inconsistency.png, attention.png);
@@ -45,9 +47,8 @@ def find_inputs(root: Path):
         raise SystemExit(f"error: no generator outputs at {root} (pass --data-root)")
     found = []
     for sub in sorted(p for p in root.iterdir() if p.is_dir()):
-        for item in sorted(sub.iterdir()):
-            if item.suffix.lower() == ".png" or item.is_dir():
-                found.append((item.stem, item))
+        found.extend((item.stem, item) for item in sorted(sub.iterdir())
+                     if item.suffix.lower() == ".png" or item.is_dir())
     return found
 
 
@@ -78,28 +79,18 @@ def inconsistency_summary(run_dir: Path):
 def run_one(method: str, source: Path, run_dir: Path, args) -> float:
     """Train (or resume) one run as ``va-train METHOD --data SOURCE --export-mesh`` would, in this process
     (output to ``RUN.log`` beside the run folder); returns its wall seconds."""
-    from va_plugin.cli.train import build_parser, make_config
-    from va_plugin.engine.trainer import list_checkpoints, train_run
-    from va_plugin.export.mesh import export_run_mesh
-    from va_plugin.registry import discover_methods
+    from va_plugin.api import build_config, export_mesh, train
 
-    arguments = [method, "--data", str(source), "--output-dir", str(run_dir), "--no-progress",
-                 "--set", f"num_threads={args.threads}"]
-    if args.steps:
-        arguments += ["--steps", str(args.steps)]
+    overrides = [f"num_threads={args.threads}"]
     if args.force_adaptive and method.startswith("va-"):
-        arguments += ["--set", "pipeline.model.field.skip_consistent_scenes=false"]
-    for assignment in args.set:
-        arguments += ["--set", assignment]
-    if not args.resume and list_checkpoints(run_dir):
-        raise SystemExit(f"error: {run_dir} already holds checkpoints; pass --resume to continue it")
-    methods = discover_methods()
-    config = make_config(build_parser(methods).parse_args(arguments), methods)
+        overrides.append("pipeline.model.field.skip_consistent_scenes=false")
+    config = build_config(method, source, out=run_dir, steps=args.steps or None, progress=False,
+                          overrides=[*overrides, *args.set])
     start = time.perf_counter()
     run_dir.mkdir(parents=True, exist_ok=True)
     with open(run_dir.parent / f"{run_dir.name}.log", "w") as log, redirect_stdout(log), redirect_stderr(log):
-        run = train_run(config, resume=args.resume)
-        export_run_mesh(run.trainer.pipeline, run_dir / "mesh.ply")
+        train(config, resume=args.resume)
+        export_mesh(run_dir, texture=False, device="cpu")
     return time.perf_counter() - start
 
 
@@ -110,7 +101,7 @@ def shared_path_psnr(run_dir: Path, scale: float = 0.5):
     import cv2
     import torch
 
-    from va_plugin.cli.run import load_run
+    from va_plugin.api import load_run
     from va_plugin.engine.trainer import list_checkpoints
     from va_plugin.eval.image import psnr
     from va_plugin.export.render import render_view
@@ -120,7 +111,7 @@ def shared_path_psnr(run_dir: Path, scale: float = 0.5):
         return json.loads(cache.read_text())["mean_psnr"]
     if not list_checkpoints(run_dir):
         return None
-    pipeline, _ = load_run(run_dir, device="cpu")
+    pipeline, _ = load_run(run_dir, device="cpu").parts()
     datamanager = pipeline.datamanager
     cameras = datamanager.cameras.scaled(scale)
     values = []
@@ -197,9 +188,8 @@ def inconsistency_figure(runs, out: Path, tile: int = 96):
         tiles = []
         for v in range(picture.shape[0] // side):
             block = picture[v * side:(v + 1) * side]
-            for column in (0, 3):
-                tiles.append(cv2.resize(block[:, column * side:(column + 1) * side], (tile, tile),
-                                        interpolation=cv2.INTER_AREA))
+            tiles.extend(cv2.resize(block[:, column * side:(column + 1) * side], (tile, tile),
+                                    interpolation=cv2.INTER_AREA) for column in (0, 3))
         rows.append(np.concatenate(tiles, axis=1))
     if not rows:
         return None
@@ -313,7 +303,8 @@ def main(argv=None) -> int:
                      for r in rows for name in [Path(r["input"]).stem] if r["method"].startswith("va-")]
     figure = inconsistency_figure(adaptive_runs, args.out)
     if figure is not None:
-        print(f"wrote {figure} (rows: {', '.join(label for label, d in adaptive_runs if (d / 'inconsistency.png').is_file())})")
+        labels = ", ".join(label for label, d in adaptive_runs if (d / "inconsistency.png").is_file())
+        print(f"wrote {figure} (rows: {labels})")
     print(f"wrote {args.out / 'generated.md'}")
     return 0
 

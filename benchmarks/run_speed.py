@@ -33,37 +33,36 @@ steps, a tiny evaluation (the test suite runs it).
 from __future__ import annotations
 
 import argparse
-import json
 import math
 import shlex
 import shutil
 import statistics
 import sys
 import time
+from collections.abc import Sequence
 from dataclasses import asdict, replace
 from datetime import datetime
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Sequence
+from typing import Any
 
 import torch
 from torch import nn
 
 from va_plugin.adaptive.attention import ViewAttention
+from va_plugin.api import build_config, cache_dir
 from va_plugin.bench.cli import duration
 from va_plugin.bench.presets import BACKBONES, EvalSettings, get_preset
-from va_plugin.bench.report import (fmt, machine_info, markdown_table, plot_stacked_bars, plot_time_curves,
-                                    write_json)
+from va_plugin.bench.report import fmt, machine_info, markdown_table, plot_stacked_bars, plot_time_curves, write_json
 from va_plugin.bench.rows import ADAPTIVE_OVERRIDES, checkpoint_along, evaluate_checkpoints
 from va_plugin.bench.scenes import SceneSpec, ensure_scene
-from va_plugin.cli.common import cache_dir, friendly_errors
-from va_plugin.cli.train import build_parser as train_parser, make_config
+from va_plugin.cli.common import friendly_errors
 from va_plugin.config import apply_override
 from va_plugin.engine.metrics_log import training_records
 from va_plugin.engine.trainer import list_checkpoints
 from va_plugin.errors import ConfigError
 from va_plugin.fields.encodings.hash_grid import HashGridEncoding
 from va_plugin.fields.encodings.positional import PositionalEncoding
-from va_plugin.registry import discover_methods, get_method
+from va_plugin.registry import get_method
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.stages import recording, stage, time_modules
 
@@ -82,24 +81,17 @@ size, a 96^3 mesh, CD on 100k surface samples."""
 
 
 # -- configs ---------------------------------------------------------------------------------------
-def backbone_of(method: str) -> Optional[str]:
+def backbone_of(method: str) -> str | None:
     """The backbone a registered method wraps (``neus`` for ``va-neus``), None for other methods."""
     return next((b for b, names in BACKBONES.items() if method in names), None)
 
 
-def method_config(method: str, args: argparse.Namespace, scene: Optional[Path], run_dir: Path):
+def method_config(method: str, args: argparse.Namespace, scene: Path | None, run_dir: Path):
     """The trainer config of one method's run, as ``va-train`` builds it from the same flags, with a
     checkpoint every ``steps / --checkpoints`` steps."""
-    argv = [method, "--output-dir", str(run_dir), "--no-progress", "--seed", str(args.seed),
-            "--device", args.device]
-    argv += ["--data", str(scene)] if scene is not None else []
-    argv += ["--preset", args.preset] if args.preset else []
-    argv += ["--steps", str(args.steps)] if args.steps is not None else []
     overrides = list(get_preset("smoke").overrides_for(backbone_of(method) or "")) if args.smoke else []
-    for override in overrides + list(args.overrides):
-        argv += ["--set", override]
-    methods = discover_methods()
-    config = make_config(train_parser(methods).parse_args(argv), methods)
+    config = build_config(method, scene, out=run_dir, progress=False, seed=args.seed, device=args.device,
+                          preset=args.preset or None, steps=args.steps, overrides=[*overrides, *args.overrides])
     if hasattr(config.pipeline.model.field, "diagnostics_scale"):  # view-adaptive: no pictures on the clock
         for override in ADAPTIVE_OVERRIDES + (SMOKE_ADAPTIVE if args.smoke else ()):
             apply_override(config, override)
@@ -110,7 +102,7 @@ def method_config(method: str, args: argparse.Namespace, scene: Optional[Path], 
 
 
 # -- measuring ---------------------------------------------------------------------------------------
-def instrument(model: nn.Module) -> List[object]:
+def instrument(model: nn.Module) -> list[object]:
     """Time the model's encodings as ``encoding`` and its network layers (linear layers, activations,
     the view attention) as ``mlp``; returns the hook handles."""
     encodings = [m for m in model.modules() if isinstance(m, (PositionalEncoding, HashGridEncoding))]
@@ -119,13 +111,13 @@ def instrument(model: nn.Module) -> List[object]:
     return time_modules(encodings, "encoding") + time_modules(networks, "mlp")
 
 
-def stage_breakdown(trainer, warmup: int, steps: int) -> Dict[str, Any]:
+def stage_breakdown(trainer, warmup: int, steps: int) -> dict[str, Any]:
     """Median seconds per stage of a training step, continuing the trained run (see the module docstring)."""
     synchronize = trainer.device.type == "cuda"
     handles = instrument(trainer.model)
-    totals: List[float] = []
-    per_stage: Dict[str, List[float]] = {name: [] for name in (*STAGES, "other")}
-    inclusive: Dict[str, List[float]] = {name: [] for name in STAGES}
+    totals: list[float] = []
+    per_stage: dict[str, list[float]] = {name: [] for name in (*STAGES, "other")}
+    inclusive: dict[str, list[float]] = {name: [] for name in STAGES}
     try:
         with recording(synchronize) as recorder:
             for index in range(warmup + steps):
@@ -149,17 +141,17 @@ def stage_breakdown(trainer, warmup: int, steps: int) -> Dict[str, Any]:
             "step_seconds_all": [round(t, 5) for t in totals]}
 
 
-def logged_means(run_dir: Path, keys: Sequence[str]) -> Dict[str, Optional[float]]:
+def logged_means(run_dir: Path, keys: Sequence[str]) -> dict[str, float | None]:
     """Mean over the run's training log lines of each key (None when the method does not log it)."""
     records = training_records(run_dir)
-    out: Dict[str, Optional[float]] = {}
+    out: dict[str, float | None] = {}
     for key in keys:
         values = [r[key] for r in records if key in r]
         out[key] = round(statistics.fmean(values), 3) if values else None
     return out
 
 
-def time_to_reach(curve: Sequence[Dict[str, Any]], factor: float = CD_FACTOR) -> Dict[str, Any]:
+def time_to_reach(curve: Sequence[dict[str, Any]], factor: float = CD_FACTOR) -> dict[str, Any]:
     """The first checkpoint from which the CD stays within ``factor`` of the last one's (every later
     checkpoint too: CD is not monotone during training, and an early smooth blob near the visual hull
     can score close to the final CD by chance), and the first checkpoint that touches it at all."""
@@ -177,7 +169,7 @@ def time_to_reach(curve: Sequence[Dict[str, Any]], factor: float = CD_FACTOR) ->
 
 
 def measure(method: str, config, scene_dir: Path, args: argparse.Namespace, evaluation: EvalSettings,
-            say) -> Dict[str, Any]:
+            say) -> dict[str, Any]:
     """Train, time the stages, evaluate the checkpoints: one method's entry of the report."""
     run_dir = Path(config.output_dir)
     shutil.rmtree(run_dir, ignore_errors=True)
@@ -216,11 +208,11 @@ def measure(method: str, config, scene_dir: Path, args: argparse.Namespace, eval
 
 
 # -- report ------------------------------------------------------------------------------------------
-def seconds(value: Optional[float]) -> str:
+def seconds(value: float | None) -> str:
     return "n/a" if value is None or not math.isfinite(value) else f"{value:.1f}"
 
 
-def tables(rows: Sequence[Dict[str, Any]]) -> List[str]:
+def tables(rows: Sequence[dict[str, Any]]) -> list[str]:
     summary = markdown_table(
         ["Method", "steps", "train s", "it/s", "samples/ray", "CD", "PSNR",
          f"s until CD stays within {CD_FACTOR:.0%} of final"],
@@ -232,7 +224,8 @@ def tables(rows: Sequence[Dict[str, Any]]) -> List[str]:
     breakdown = markdown_table(
         ["Method", "step ms", *names],
         [[r["method"], f"{1000 * r['breakdown']['step_seconds']:.1f}",
-          *(f"{1000 * r['breakdown']['stages'][n]:.1f} ({r['breakdown']['stages'][n] / r['breakdown']['step_seconds']:.0%})"
+          *(f"{1000 * r['breakdown']['stages'][n]:.1f} "
+            f"({r['breakdown']['stages'][n] / r['breakdown']['step_seconds']:.0%})"
             for n in names)] for r in rows])
     inclusive = markdown_table(
         ["Method", *STAGES], [[r["method"], *(f"{1000 * r['breakdown']['inclusive'][n]:.1f}" for n in STAGES)]
@@ -242,11 +235,11 @@ def tables(rows: Sequence[Dict[str, Any]]) -> List[str]:
             inclusive]
 
 
-def write_report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any], plots: bool = True) -> List[Path]:
+def write_report(rows: list[dict[str, Any]], out: Path, meta: dict[str, Any], plots: bool = True) -> list[Path]:
     """speed.json and speed.md, and with ``plots`` the two pictures."""
     out.mkdir(parents=True, exist_ok=True)
     written = [write_json(rows, out / "speed.json", meta)]
-    lines = [f"# Speed: error against training time, and the stages of a step", "",
+    lines = ["# Speed: error against training time, and the stages of a step", "",
              f"- command: `{meta['command']}`", f"- date: {meta['date']}; device: {meta['device']}",
              f"- machine: {meta['machine']['cpus']} CPU cores, torch {meta['machine']['torch']} with "
              f"{meta['machine']['torch_threads']} threads; {meta['machine']['platform']}",
@@ -257,12 +250,11 @@ def write_report(rows: List[Dict[str, Any]], out: Path, meta: Dict[str, Any], pl
     written.append(out / "speed.md")
     if not plots:
         return written
-    for path in (plot_time_curves(rows, out / "speed.png", "Error against training seconds (evaluation off the clock)"),
-                 plot_stacked_bars({r["method"]: {n: 1000 * s for n, s in r["breakdown"]["stages"].items()}
-                                    for r in rows}, out / "speed_stages.png",
-                                   "Median time per training step, by stage (exclusive)", "milliseconds")):
-        if path is not None:
-            written.append(path)
+    paths = (plot_time_curves(rows, out / "speed.png", "Error against training seconds (evaluation off the clock)"),
+             plot_stacked_bars({r["method"]: {n: 1000 * s for n, s in r["breakdown"]["stages"].items()}
+                                for r in rows}, out / "speed_stages.png",
+                               "Median time per training step, by stage (exclusive)", "milliseconds"))
+    written.extend(path for path in paths if path is not None)
     return written
 
 
@@ -283,7 +275,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda[:N]")
     parser.add_argument("--seed", type=int, default=42)
     parser.add_argument("--image-scale", type=float, default=None,
-                        help=f"held-out views are scored at this fraction of their size (default {EVALUATION.image_scale})")
+                        help="held-out views are scored at this fraction of their size "
+                             f"(default {EVALUATION.image_scale})")
     parser.add_argument("--eval-views", type=int, default=None,
                         help=f"held-out views scored (default {EVALUATION.max_views}; the first ones)")
     parser.add_argument("--mesh-resolution", type=int, default=None,
@@ -350,7 +343,7 @@ def run(args: argparse.Namespace, command: str) -> int:
     scene_dir = Path(next(iter(configs.values())).pipeline.datamanager.dataparser.data)
     machine = machine_info()
     device = pick_device(args.device)
-    meta: Dict[str, Any] = {
+    meta: dict[str, Any] = {
         "command": command, "date": datetime.now().strftime("%Y-%m-%d %H:%M"), "machine": machine,
         "device": f"{device}" + (f" ({torch.cuda.get_device_name(device)})" if device.type == "cuda" else ""),
         "scene": str(scene_dir) if args.data is not None or args.smoke else f"embedded default scene ({scene_dir})",
@@ -359,8 +352,8 @@ def run(args: argparse.Namespace, command: str) -> int:
         "evaluation": asdict(evaluation), "cd_factor": CD_FACTOR, "stages": [*STAGES, "other"],
     }
     say(f"speed benchmark: {', '.join(args.methods)} on {meta['scene']}; results in {out}")
-    rows: List[Dict[str, Any]] = []
-    written: List[Path] = []
+    rows: list[dict[str, Any]] = []
+    written: list[Path] = []
     for index, (method, config) in enumerate(configs.items()):
         say(f"method {index + 1}/{len(configs)}: {method}")
         rows.append(measure(method, config, scene_dir, args, evaluation, say))
@@ -371,7 +364,7 @@ def run(args: argparse.Namespace, command: str) -> int:
     return 0
 
 
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     """Run the benchmark (``error: ...`` and exit 2 on bad input, 130 on Ctrl-C)."""
     arguments = sys.argv[1:] if argv is None else list(argv)
     command = " ".join(["python benchmarks/run_speed.py", *(shlex.quote(a) for a in arguments)])

@@ -23,9 +23,9 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from va_plugin.api import load_run
 from va_plugin.bench.store import ROWS_FILE, ResultStore
 from va_plugin.cli.common import friendly_errors
-from va_plugin.cli.run import load_run
 from va_plugin.errors import ConfigError
 from va_plugin.eval.evaluate import ground_truth_mesh_path, image_metrics, load_mesh
 from va_plugin.eval.mesh_render import SCORE_SUPERSAMPLE, check_supersample, textured_mesh_metrics
@@ -113,7 +113,7 @@ def run_mesh(pipeline, source: str, resolution: int):
 def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust", "mean"),
              reuse_field: bool = False, mesh_source: str = "extracted", mesh_resolution: int = 128,
              max_faces: int = MAX_TEXTURE_FACES, supersample: int = SCORE_SUPERSAMPLE) -> dict:
-    pipeline, state = load_run(run, device="cpu")
+    pipeline, state = load_run(run, device="cpu").parts()
     record = {"run": str(run), "steps": int(state["step"]), "mesh": mesh_source, "texture_size": size,
               "max_faces": max_faces, "supersample": supersample}
     if mesh_source == "extracted":
@@ -175,8 +175,9 @@ def table(records) -> str:
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, nargs="+", required=True, help="run folders of va-train")
-    parser.add_argument("--out", type=Path, required=True, help="JSON lines, one per run and setting (appended; a run already scored with the same --mesh, "
-                        "--mesh-resolution and --texture-size is skipped)")
+    parser.add_argument("--out", type=Path, required=True,
+                        help="JSON lines, one per run and setting (appended; a run already scored with the same "
+                        "--mesh, --mesh-resolution and --texture-size is skipped)")
     parser.add_argument("--texture-size", type=int, default=1024)
     parser.add_argument("--max-views", type=int, default=None, help="score at most this many held-out views")
     parser.add_argument("--timing-views", type=int, default=16,
@@ -217,7 +218,7 @@ def main(argv=None) -> int:
         for line in args.out.read_text().splitlines():
             record = json.loads(line)
             done[resume_key(record)] = record
-    key = lambda run: resume_key({"run": str(run), "mesh": args.mesh, "mesh_resolution": args.mesh_resolution,  # noqa: E731
+    key = lambda run: resume_key({"run": str(run), "mesh": args.mesh, "mesh_resolution": args.mesh_resolution,
                                   "texture_size": args.texture_size, "max_faces": args.max_faces,
                                   "supersample": args.supersample})
     for k, run in enumerate(args.runs):

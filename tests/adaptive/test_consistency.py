@@ -87,8 +87,9 @@ def test_colour_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
     by the tint and leaves view 0 at 1 (the gains themselves are far from 1 here: the start sphere does not
     register the mug's views; what the test checks is that the fit reads the views' colour ratios)."""
     from conftest import tiny_config
+
     from va_plugin.adaptive.consistency import colour_cast
-    from va_plugin.cli.run import load_run
+    from va_plugin.api import load_run
     from va_plugin.data.scenes.builder import build_procedural_scene
     from va_plugin.export.texture import run_views
 
@@ -96,7 +97,7 @@ def test_colour_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
     scene = build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=8, resolution=64)
     run = tmp_path_factory.mktemp("run")
     tiny_config("neus", scene, run, steps=2).setup().train()
-    pipeline, _ = load_run(run, "cpu")
+    pipeline, _ = load_run(run, "cpu").parts()
     views = run_views(pipeline)
     before = colour_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=32)
     tint = np.array([1.1, 1.0, 0.9], np.float32)

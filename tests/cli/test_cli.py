@@ -21,7 +21,8 @@ def test_help_lists_methods(capsys):
 def test_train_export_mesh_and_render(tiny_scene, tmp_path, capsys):
     run = tmp_path / "run"
     assert train_cli.main(["neus", "--data", str(tiny_scene), "--output-dir", str(run), "--steps", "2", *TINY]) == 0
-    assert export_cli.main(["mesh", "--load-dir", str(run), "--resolution", "32", "--output", str(run / "m.obj")]) in (0, 2)
+    assert export_cli.main(["mesh", "--load-dir", str(run), "--resolution", "32",
+                            "--output", str(run / "m.obj")]) in (0, 2)
     out = capsys.readouterr()
     # an untrained field may legitimately have no surface; then the message must say so in one line
     assert (run / "m.obj").exists() or "no surface" in out.err
@@ -73,8 +74,7 @@ def test_demo_trains_neus_with_its_own_budget_unless_told_otherwise():
     methods = discover_methods()
 
     def config(*argv):
-        args = demo.demo_train_args(demo.build_parser().parse_args(list(argv)), methods)
-        return train_cli.make_config(args, methods)
+        return demo.demo_config(demo.build_parser().parse_args(list(argv)), resolve_data=False)
 
     default = config()
     assert default.max_steps == demo.DEMO_STEPS.get("neus", methods["neus"].make_config().max_steps)

@@ -2,8 +2,8 @@ import json
 
 import pytest
 import torch
-
 from conftest import tiny_config
+
 from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
 from va_plugin.engine.trainer import atomic_save, list_checkpoints, load_checkpoint, make_adam
 from va_plugin.errors import CheckpointError, ConfigError
@@ -250,7 +250,7 @@ def test_checkpoint_of_an_earlier_version_loads_without_its_removed_options(tiny
     import types
     from dataclasses import dataclass
 
-    from va_plugin.cli.run import load_run
+    from va_plugin.api import load_run
     from va_plugin.engine.trainer import RemovedOption, load_checkpoint
 
     @dataclass
@@ -267,5 +267,5 @@ def test_checkpoint_of_an_earlier_version_loads_without_its_removed_options(tiny
     monkeypatch.delitem(sys.modules, module.__name__)
     state = load_checkpoint(tmp_path / "run")
     assert isinstance(state["config_object"].pipeline.model.gone_option, RemovedOption)
-    pipeline, _ = load_run(tmp_path / "run")
+    pipeline, _ = load_run(tmp_path / "run").parts()
     assert pipeline.model is not None

@@ -11,10 +11,11 @@ import sys
 import time
 from dataclasses import asdict
 from pathlib import Path
-from typing import Any, Dict, List, Optional
+from typing import Any
 
 from tqdm import tqdm
 
+from va_plugin.api import build_config
 from va_plugin.batch.engines import ENGINES, import_ray, run_local, run_ray
 from va_plugin.batch.inputs import find_objects
 from va_plugin.batch.job import Evaluation, ObjectJob
@@ -22,9 +23,8 @@ from va_plugin.batch.manifest import Manifest
 from va_plugin.batch.summary import contact_sheet, write_summary
 from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
 from va_plugin.cli.train import add_object_options
-from va_plugin.config import apply_override
 from va_plugin.errors import ConfigError
-from va_plugin.registry import discover_methods
+from va_plugin.export.texture import check_texture_size
 
 EXIT_SOME_FAILED = 1
 
@@ -34,7 +34,8 @@ def build_parser() -> argparse.ArgumentParser:
         prog="va-batch", description="Reconstruct every object of a folder: train, export the mesh and evaluate "
         "against ground truth where the object has it, one job per object.",
         epilog="Writes OUT/runs/NAME (one va-train run folder per object, with mesh.ply, mesh.glb (textured), "
-               "thumbnail.png, eval.json and batch.log), OUT/manifest.jsonl, OUT/summary.csv, OUT/summary.md and OUT/contact_sheet.png. "
+               "thumbnail.png, eval.json and batch.log), OUT/manifest.jsonl, OUT/summary.csv, OUT/summary.md and "
+               "OUT/contact_sheet.png. "
                "The options after --no-progress are va-train's and hold for every object.")
     parser.add_argument("inputs", type=Path, help="a folder of generator outputs and/or scene folders, or a text "
                         "file listing them (one path a line)")
@@ -43,7 +44,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--engine", choices=ENGINES, default="local",
                         help="local: worker processes on this machine (default); ray: one Ray task per object")
     parser.add_argument("--workers", type=int, default=None,
-                        help="objects at once (local engine, or the local Ray instance); default: CPU cores / --threads")
+                        help="objects at once (local engine, or the local Ray instance); "
+                             "default: CPU cores / --threads")
     parser.add_argument("--threads", type=int, default=1, help="torch threads (Ray: CPUs) per object (default 1)")
     parser.add_argument("--ray-address", default=None, help="join this Ray cluster ('auto': the one this machine "
                         "belongs to); default: start a local Ray instance for the batch")
@@ -57,7 +59,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-samples", type=int, default=100_000,
                         help="surface samples per mesh for the Chamfer distance and F-score")
     parser.add_argument("--no-texture", action="store_true",
-                        help="skip the textured mesh (RUN/mesh.glb, va-export mesh --texture); mesh.ply is always written")
+                        help="skip the textured mesh (RUN/mesh.glb, va-export mesh --texture); "
+                             "mesh.ply is always written")
     parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
     parser.add_argument("--fusion", choices=("robust", "mean"), default="robust",
                         help="how the texture fuses disagreeing views (as va-export mesh --fusion)")
@@ -66,7 +69,7 @@ def build_parser() -> argparse.ArgumentParser:
     return parser
 
 
-def object_option_names() -> List[str]:
+def object_option_names() -> list[str]:
     """The argparse names of va-train's per-object options, which every job passes on to va-train."""
     probe = argparse.ArgumentParser(add_help=False)
     add_object_options(probe)
@@ -75,12 +78,7 @@ def object_option_names() -> List[str]:
 
 def check_options(args: argparse.Namespace) -> None:
     """Refuse a bad command before any job starts (one line each)."""
-    methods = discover_methods()
-    if args.method not in methods:
-        raise ConfigError(f"unknown method {args.method!r}; known methods: {', '.join(methods)}")
-    config = methods[args.method].make_config(args.preset)
-    for assignment in args.overrides:
-        apply_override(config, assignment)
+    build_config(args.method, preset=args.preset, overrides=args.overrides, resolve_data=False)
     if args.threads < 1 or (args.workers is not None and args.workers < 1):
         raise ConfigError("--workers and --threads must be at least 1")
     if args.steps is not None and args.steps < 1:
@@ -93,15 +91,13 @@ def check_options(args: argparse.Namespace) -> None:
     if args.retry_failed and not args.resume:
         raise ConfigError("--retry-failed goes with --resume")
     if not args.no_texture:
-        from va_plugin.export.texture import check_texture_size
-
         check_texture_size(args.texture_size)
     check_output_dir(args.out, "--out")
     if args.engine == "ray":
         import_ray()
 
 
-def _result_line(record: Dict[str, Any]) -> str:
+def _result_line(record: dict[str, Any]) -> str:
     if record["status"] != "ok":
         return f"failed {record['name']}: {record.get('error', '')}"
     metrics = ", ".join(f"{k} {record[k]:.4g}" for k in ("cd", "iou", "psnr", "lpips") if record.get(k) is not None)
@@ -109,7 +105,7 @@ def _result_line(record: Dict[str, Any]) -> str:
 
 
 @friendly_errors
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     check_options(args)
     objects = find_objects(args.inputs)
@@ -124,7 +120,7 @@ def main(argv: Optional[List[str]] = None) -> int:
                       texture_size, args.fusion) for o in objects if not manifest.finished(o.name, args.retry_failed)]
     names = [o.name for o in objects]
 
-    def ordered() -> List[Dict[str, Any]]:
+    def ordered() -> list[dict[str, Any]]:
         return [manifest.records[n] for n in names if n in manifest.records]
 
     engine = (f"Ray ({args.ray_address or 'local instance'}), {args.threads} CPU(s) a job" if args.engine == "ray"
@@ -134,7 +130,7 @@ def main(argv: Optional[List[str]] = None) -> int:
     bar = tqdm(total=len(objects), initial=len(objects) - len(jobs), unit="object", desc="va-batch",
                disable=args.no_progress, dynamic_ncols=True)
 
-    def on_done(record: Dict[str, Any]) -> None:
+    def on_done(record: dict[str, Any]) -> None:
         manifest.add(record)
         write_summary(out, ordered())
         bar.update(1)

@@ -16,10 +16,11 @@ import time
 import warnings
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Any, Dict, List, Optional, Tuple
+from typing import Any
 
 import torch
 
+from va_plugin.api import build_config
 from va_plugin.bench.presets import BACKBONE_TITLES, BACKBONES, BenchPreset, EvalSettings
 from va_plugin.bench.scenes import SceneSpec, input_error
 from va_plugin.config import apply_override, config_digest
@@ -45,9 +46,9 @@ class RowSpec:
     backbone: str
     adaptive: bool
     variant: str = ""  # label in its table (default: "Original NeuS", "View-adaptive NeuS", ...)
-    overrides: Tuple[str, ...] = ()
-    method_preset: Optional[str] = None  # registry preset (default: the benchmark preset's)
-    steps: Optional[int] = None  # step budget (default: the benchmark preset's, else the method's)
+    overrides: tuple[str, ...] = ()
+    method_preset: str | None = None  # registry preset (default: the benchmark preset's)
+    steps: int | None = None  # step budget (default: the benchmark preset's, else the method's)
 
     @property
     def method(self) -> str:
@@ -68,16 +69,10 @@ class RowSpec:
 def row_config(row: RowSpec, preset: BenchPreset, scene_dir: Path, run_dir: Path, seed: int = 42,
                device: str = "auto"):
     """The trainer config of a row (see the module docstring)."""
-    config = get_method(row.method).make_config(row.method_preset or preset.method_preset)
-    config.pipeline.datamanager.dataparser.data = Path(scene_dir)
-    config.output_dir = Path(run_dir)
-    if row.steps is not None:
-        config.max_steps = row.steps
-    elif row.backbone in preset.steps:
-        config.max_steps = preset.steps[row.backbone]
-    config.seed = seed
-    config.device = device
-    config.progress = False
+    steps = row.steps if row.steps is not None else preset.steps.get(row.backbone)
+    config = build_config(row.method, preset=row.method_preset or preset.method_preset, steps=steps, seed=seed,
+                          device=device, out=run_dir, progress=False, resolve_data=False)
+    config.pipeline.datamanager.dataparser.data = Path(scene_dir)  # benchmark scenes: the method's own parser
     checkpoint_along(config, preset.curve_points)
     extra = ADAPTIVE_OVERRIDES if row.adaptive else ()
     for assignment in (*preset.overrides_for(row.backbone), *extra, *row.overrides):
@@ -102,7 +97,7 @@ def fingerprint(config, evaluation: EvalSettings, out: Path) -> str:
     return hashlib.sha1(text.encode()).hexdigest()[:16]
 
 
-def evaluate_state(pipeline, state: Dict[str, Any], scene_dir: Path, evaluation: EvalSettings) -> Dict[str, Any]:
+def evaluate_state(pipeline, state: dict[str, Any], scene_dir: Path, evaluation: EvalSettings) -> dict[str, Any]:
     """``evaluate_run`` of a loaded state; when the run has no mesh to score (no surface, or one that
     encloses nothing) the image metrics are kept and the geometry metrics are NaN, with the reason."""
     from va_plugin.eval.evaluate import evaluate_run, image_metrics
@@ -121,7 +116,7 @@ def evaluate_state(pipeline, state: Dict[str, Any], scene_dir: Path, evaluation:
 
 
 def evaluate_checkpoints(pipeline, run_dir: Path, scene_dir: Path, evaluation: EvalSettings, every: int,
-                         max_steps: int) -> List[Dict[str, Any]]:
+                         max_steps: int) -> list[dict[str, Any]]:
     """Evaluate the run's checkpoints at multiples of ``every`` (and the last step), oldest first."""
     points = []
     for path in list_checkpoints(run_dir):
@@ -142,7 +137,7 @@ def _adaptive_ran(model) -> bool:
 
 
 def run_row(row: RowSpec, config, scene_dir: Path, evaluation: EvalSettings, row_fingerprint: str,
-            on_interrupt=None) -> Dict[str, Any]:
+            on_interrupt=None) -> dict[str, Any]:
     """Train (or resume) the row's run, evaluate it along the way and at the end; the finished row."""
     run_dir = Path(config.output_dir)
     marker = run_dir / ROW_FILE
@@ -164,7 +159,7 @@ def run_row(row: RowSpec, config, scene_dir: Path, evaluation: EvalSettings, row
     for path in list_checkpoints(run_dir)[:-1]:
         path.unlink()
     final = curve[-1]
-    result: Dict[str, Any] = {
+    result: dict[str, Any] = {
         "experiment": row.experiment, "key": row.key, "fingerprint": row_fingerprint,
         "scene": row.scene.name, "method": row.method, "backbone": row.backbone, "adaptive": row.adaptive,
         **{name: final.get(name, float("nan")) for name in METRICS},
@@ -192,8 +187,8 @@ def run_steps(row: RowSpec, preset: BenchPreset) -> int:
     return int(get_method(row.method).make_config(row.method_preset or preset.method_preset).max_steps)
 
 
-def scene_of(source: str, preset: BenchPreset, seed: int, level: Optional[int] = None,
-             views: Optional[int] = None, kinds: Optional[Tuple[str, ...]] = None) -> SceneSpec:
+def scene_of(source: str, preset: BenchPreset, seed: int, level: int | None = None,
+             views: int | None = None, kinds: tuple[str, ...] | None = None) -> SceneSpec:
     """The scene of a source under a preset (its level, views and resolution unless given; every
     inconsistency kind unless ``kinds`` names fewer)."""
     spec = SceneSpec(source, preset.level if level is None else level, preset.views if views is None else views,

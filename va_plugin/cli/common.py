@@ -7,8 +7,8 @@ import os
 import sys
 import tempfile
 import warnings
+from collections.abc import Callable
 from pathlib import Path
-from typing import Callable
 
 from va_plugin.errors import VAError
 from va_plugin.utils.interrupts import terminate_as_interrupt
@@ -43,11 +43,6 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
 def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings on the command line as ``warning: <message>``, without the source line."""
     print(f"warning: {message}", file=sys.stderr if file is None else file)
-
-
-def cache_dir() -> Path:
-    """Where generated default data lives (``$VA_PLUGIN_CACHE`` or ``~/.cache/va-plugin``)."""
-    return Path(os.environ.get("VA_PLUGIN_CACHE", Path.home() / ".cache" / "va-plugin"))
 
 
 def check_output_dir(path: Path, flag: str) -> None:

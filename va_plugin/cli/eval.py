@@ -3,15 +3,15 @@
 from __future__ import annotations
 
 import argparse
-import json
 import sys
+import time
 from pathlib import Path
-from typing import List, Optional
 
+from va_plugin.api import EVAL_FILE, check_evaluate_options, evaluate, load_run, write_json
 from va_plugin.cli.common import friendly_errors
-from va_plugin.cli.run import load_run
-from va_plugin.errors import ConfigError
-from va_plugin.utils.memory import check_mesh_resolution, check_render_size
+from va_plugin.eval.mesh_render import check_supersample, textured_mesh_metrics
+from va_plugin.export.mesh import extract_mesh
+from va_plugin.export.texture import bake_texture, check_texture_size, field_fallback, run_views
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -41,38 +41,23 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 @friendly_errors
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    if args.mesh_resolution < 8 or args.image_scale <= 0:
-        raise ConfigError("--mesh-resolution must be at least 8 and --image-scale positive")
-    if args.scene is not None and not (args.scene / "scene.json").is_file():
-        raise ConfigError(f"{args.scene} holds no scene.json")
+    check_evaluate_options(args.scene, args.mesh_resolution, args.image_scale)
     if args.texture:
-        from va_plugin.eval.mesh_render import check_supersample
-        from va_plugin.export.texture import check_texture_size
-
         check_texture_size(args.texture_size)
         check_supersample(args.texture_supersample, "--texture-supersample")
-    check_mesh_resolution(args.mesh_resolution, "--mesh-resolution")
-    from va_plugin.eval.evaluate import evaluate_run
-
-    pipeline, state = load_run(args.load_dir, device=args.device)
-    if pipeline.datamanager.test is not None:
-        test_cameras = pipeline.datamanager.test.cameras
-        check_render_size(test_cameras.width, test_cameras.height, args.image_scale, "--image-scale")
+    output = args.output if args.output is not None else args.load_dir / EVAL_FILE
+    loaded = load_run(args.load_dir, args.device) if args.texture else args.load_dir
     mesh = None
     if args.texture:
-        from va_plugin.export.mesh import extract_mesh
-
-        mesh = extract_mesh(pipeline.model, resolution=args.mesh_resolution, with_color=False)
-    result = evaluate_run(pipeline, state, args.scene, args.mesh_resolution, args.image_scale, args.max_views,
-                          progress=not args.no_progress, mesh=mesh)
+        mesh = extract_mesh(loaded.pipeline.model, resolution=args.mesh_resolution, with_color=False)
+    result = evaluate(loaded, scene=args.scene, mesh_resolution=args.mesh_resolution, image_scale=args.image_scale,
+                      max_views=args.max_views, mesh=mesh, output=None, progress=not args.no_progress,
+                      device=args.device)
     if args.texture:
-        result.update(textured_mesh_scores(pipeline, mesh, args, "lpips" in result))
-    output = args.output if args.output is not None else args.load_dir / "eval.json"
-    tmp = output.with_name(output.name + ".tmp")  # a killed va-eval leaves no half-written eval.json
-    tmp.write_text(json.dumps(result, indent=2))
-    tmp.replace(output)
+        result.update(textured_mesh_scores(loaded.pipeline, mesh, args, "lpips" in result))
+    write_json(output.resolve(), result)
     shown = ", ".join(f"{k} {result[k]:.4g}" for k in ("psnr", "ssim", "lpips", "cd", "iou", "fscore") if k in result)
     print(f"{shown}; written to {output}")
     if args.texture:
@@ -82,11 +67,6 @@ def main(argv: Optional[List[str]] = None) -> int:
 
 def textured_mesh_scores(pipeline, mesh, args, use_lpips: bool):
     """``mesh_psnr``, ``mesh_ssim``, ``mesh_lpips`` of the run's mesh textured from its input views."""
-    import time
-
-    from va_plugin.eval.mesh_render import textured_mesh_metrics
-    from va_plugin.export.texture import bake_texture, field_fallback, run_views
-
     started = time.perf_counter()
     textured, report = bake_texture(mesh, run_views(pipeline), size=args.texture_size, fusion=args.fusion,
                                     fallback=field_fallback(pipeline.model), progress=not args.no_progress,

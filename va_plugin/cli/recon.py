@@ -4,32 +4,24 @@ It detects the input's format, trains the recommended method on every view the i
 into the output folder the mesh (``mesh.ply``), the textured mesh (``mesh.glb``, which viewers open as it
 is), a turntable of it (``turntable/turntable.mp4`` and ``turntable/turntable.png``) and ``summary.json``;
 it ends by printing what to open. It runs the same job as each object of ``va-batch``
-(:func:`va_plugin.batch.job.reconstruct`). Exit status: 0 done, 2 bad command or input (one line, checked
+(:func:`va_plugin.api.reconstruct`). Exit status: 0 done, 2 bad command or input (one line, checked
 before any training, nothing written), 130 interrupted (continue with ``--resume``).
 """
 
 from __future__ import annotations
 
 import argparse
-import json
 import sys
-import time
 from pathlib import Path
-from typing import List, Optional
 
+from va_plugin.api import QUALITIES, RECOMMENDED_METHOD, SUMMARY_FILE, TrainingInterrupted, reconstruct
 from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
-from va_plugin.errors import ConfigError
-
-QUALITIES = {"fast": "fast", "default": None, "accurate": "accurate"}
-"""``--quality`` -> the method's preset."""
-RECOMMENDED_METHOD = "neus"
-SUMMARY_FILE = "summary.json"
+from va_plugin.cli.train import VIEWS_HELP, parse_views
+from va_plugin.data.dataparsers import FORMATS
+from va_plugin.registry import discover_methods
 
 
 def build_parser(methods) -> argparse.ArgumentParser:
-    from va_plugin.cli.train import VIEWS_HELP, parse_views
-    from va_plugin.data.dataparsers import FORMATS
-
     listing = ", ".join(methods)
     parser = argparse.ArgumentParser(
         prog="va-recon",
@@ -53,9 +45,12 @@ def build_parser(methods) -> argparse.ArgumentParser:
     parser.add_argument("--data-format", default="auto", choices=("auto", *FORMATS),
                         help="input format (default auto: detected from the input)")
     parser.add_argument("--no-texture", action="store_true", help="vertex colours only (no mesh.glb, no turntable)")
-    parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels, a power of two (default 1024)")
-    parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of the mesh (default 128)")
-    parser.add_argument("--turntable-frames", type=int, default=36, help="frames of the turntable, 0 for none (default 36)")
+    parser.add_argument("--texture-size", type=int, default=1024,
+                        help="texture side in texels, a power of two (default 1024)")
+    parser.add_argument("--mesh-resolution", type=int, default=128,
+                        help="marching-cubes grid of the mesh (default 128)")
+    parser.add_argument("--turntable-frames", type=int, default=36,
+                        help="frames of the turntable, 0 for none (default 36)")
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the method's)")
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 42)")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N] (default auto)")
@@ -65,39 +60,7 @@ def build_parser(methods) -> argparse.ArgumentParser:
     return parser
 
 
-def check_args(args: argparse.Namespace, methods) -> None:
-    """Refuse a bad command before anything is read or written (one line each)."""
-    from va_plugin.cli.train import make_config
-    from va_plugin.export.texture import check_texture_size
-
-    if args.method not in methods:
-        raise ConfigError(f"unknown method {args.method!r}; known methods: {', '.join(methods)}")
-    if not args.input.exists():
-        raise ConfigError(f"input not found: {args.input}")
-    if not args.no_texture:
-        check_texture_size(args.texture_size)
-    if args.mesh_resolution < 8:
-        raise ConfigError(f"--mesh-resolution must be at least 8, got {args.mesh_resolution}")
-    if args.turntable_frames < 0:
-        raise ConfigError(f"--turntable-frames must be 0 or more, got {args.turntable_frames}")
-    check_output_dir(args.out, "--out")
-    # reads the input's format and every option as va-train would, so a bad value fails here, not later
-    make_config(train_namespace(args), methods)
-
-
-def train_namespace(args: argparse.Namespace) -> argparse.Namespace:
-    """The va-train options of this command (what each object of va-batch gets too)."""
-    return argparse.Namespace(**options(args), method=args.method, data=args.input, output_dir=args.out,
-                              no_progress=False, default_scene_resolution=None)
-
-
-def options(args: argparse.Namespace) -> dict:
-    return {"data_format": args.data_format, "views": args.views, "elevation": None, "rig": None,
-            "masks": args.masks, "preset": QUALITIES[args.quality], "steps": args.steps, "seed": args.seed,
-            "device": args.device, "overrides": list(args.overrides)}
-
-
-def summary_lines(record: dict, out: Path) -> List[str]:
+def summary_lines(record: dict, out: Path) -> list[str]:
     lines = [f"done in {record['seconds']:.0f} s ({record['steps']} steps, {record['train_seconds']:.0f} s "
              f"training); {record['views']} views, masks from the {record['masks']}"]
     for key, what in (("textured_mesh", "textured mesh"), ("turntable", "turntable"), ("mesh", "mesh")):
@@ -107,37 +70,29 @@ def summary_lines(record: dict, out: Path) -> List[str]:
     return lines
 
 
-@friendly_errors
-def main(argv: Optional[List[str]] = None) -> int:
-    from va_plugin.registry import discover_methods
+def say(line: str) -> None:
+    print(f"va-recon: {line}", file=sys.stderr, flush=True)
 
+
+@friendly_errors
+def main(argv: list[str] | None = None) -> int:
     methods = discover_methods()
     args = build_parser(methods).parse_args(argv)
     if args.out is None:
         args.out = Path("outputs") / "recon" / args.input.expanduser().resolve().stem
-    check_args(args, methods)
-    from va_plugin.batch.job import Evaluation, ObjectJob, reconstruct
-    from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints
-
-    out = args.out
-    if list_checkpoints(out) and not args.resume:
-        raise ConfigError(f"{out} already holds a run; pass --resume to continue it, or choose another --out")
-    job = ObjectJob(args.input.name, args.input, out, args.method, options(args), threads=0,
-                    evaluation=Evaluation(mesh_resolution=args.mesh_resolution),
-                    texture_size=0 if args.no_texture else args.texture_size,
-                    turntable_frames=0 if args.no_texture else args.turntable_frames, progress=True)
-    print(f"va-recon: {args.method} ({args.quality}) on {args.input} -> {out}", file=sys.stderr)
-    started = time.perf_counter()
+    check_output_dir(args.out, "--out")
     try:
-        record = reconstruct(job, on_resume=lambda step: print(f"resuming from step {step}", file=sys.stderr))
+        result = reconstruct(args.input, args.out, method=args.method, quality=args.quality,
+                             views=args.views if args.views is not None else "all", steps=args.steps,
+                             device=args.device, texture=not args.no_texture, seed=args.seed, masks=args.masks,
+                             data_format=args.data_format, resume=args.resume, texture_size=args.texture_size,
+                             mesh_resolution=args.mesh_resolution, turntable_frames=args.turntable_frames,
+                             show_progress=True, on_message=say, overrides=list(args.overrides))
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with the same "
               "command and --resume", file=sys.stderr)
         return EXIT_INTERRUPTED
-    record = {"input": str(args.input), "method": args.method, "quality": args.quality,
-              "seconds": round(time.perf_counter() - started, 1), **record}
-    (out / SUMMARY_FILE).write_text(json.dumps(record, indent=2))
-    print("\n".join(summary_lines(record, out)))
+    print("\n".join(summary_lines(result.record, args.out)))
     return 0
 
 

@@ -5,13 +5,12 @@ from __future__ import annotations
 import argparse
 import sys
 from pathlib import Path
-from typing import List, Optional
 
-from va_plugin.cli.common import EXIT_INTERRUPTED, cache_dir, check_output_dir, friendly_errors
-from va_plugin.config import apply_override, format_options
-from va_plugin.data.datamanager import MASK_PICTURE
-from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
-from va_plugin.errors import ConfigError
+from va_plugin.api import VIEW_COUNTS, TrainingInterrupted, build_config, export_mesh, train
+from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
+from va_plugin.config import format_options
+from va_plugin.data.dataparsers import FORMATS
+from va_plugin.engine.metrics_log import training_records
 from va_plugin.registry import discover_methods
 
 
@@ -46,11 +45,10 @@ def build_parser(methods) -> argparse.ArgumentParser:
 
 
 VIEWS_HELP = "SyncDreamer: training views of its 16, uniform in azimuth: 4, 8, 12, 16 or all"
-VIEW_COUNTS = (4, 8, 12, 16)
 
 
 def parse_views(text: str):
-    """``--views``: one of :data:`VIEW_COUNTS`, or ``all`` (every view the input has)."""
+    """``--views``: one of :data:`~va_plugin.api.VIEW_COUNTS`, or ``all`` (every view the input has)."""
     if text.strip().lower() == "all":
         return "all"
     if text.strip().isdigit() and int(text) in VIEW_COUNTS:
@@ -77,102 +75,50 @@ def add_object_options(parser: argparse.ArgumentParser) -> None:
                         help="override any config value, e.g. pipeline.model.eikonal_weight=0.05")
 
 
-# flag -> (dataparser option, the formats that have it)
-GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"), "elevation": ("elevation_deg", "syncdreamer"),
-                     "rig": ("rig", "zero123pp"), "masks": ("masks", "syncdreamer, zero123pp and wonder3d")}
+OBJECT_OPTIONS = ("data_format", "views", "elevation", "rig", "preset", "steps", "seed", "device", "overrides")
+"""The :func:`add_object_options` flags, by their names in :func:`va_plugin.api.build_config`."""
 
 
-def apply_generator_options(parser_config, args: argparse.Namespace) -> None:
-    """Copy the generator flags that were given onto the dataparser config, refusing ones it lacks."""
-    for flag, (option, formats) in GENERATOR_OPTIONS.items():
-        value = getattr(args, flag)
-        if value is None:
-            continue
-        if value == "all":  # every view the input has: the generators' parsers train on all by default
-            if hasattr(parser_config, option):
-                setattr(parser_config, option, max(VIEW_COUNTS))
-            continue
-        if not hasattr(parser_config, option):
-            raise ConfigError(f"--{flag} applies to {formats} inputs only")
-        setattr(parser_config, option, value)
+def object_options(args: argparse.Namespace) -> dict:
+    """The :func:`add_object_options` values of a parsed command line, as ``build_config`` keywords."""
+    return {name: getattr(args, name) for name in OBJECT_OPTIONS}
 
 
-def make_config(args: argparse.Namespace, methods, resolve_data: bool = True):
-    """The trainer config of a parsed command line (``resolve_data=False``: the method's own dataparser
-    config, without reading the input or building the default scene)."""
-    if args.method not in methods:
-        raise ConfigError(f"unknown method {args.method!r}; known methods: {', '.join(methods)}")
-    config = methods[args.method].make_config(args.preset)
-    config.method_name = args.method
-    data = args.data
-    if data is None and resolve_data:
-        from va_plugin.data.scenes.builder import ensure_default_scene
-
-        data = ensure_default_scene(cache_dir() / f"default-scene-{args.default_scene_resolution}",
-                                    resolution=args.default_scene_resolution)
-    if data is not None:
-        config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), args.data_format,
-                                                                    config.pipeline.datamanager.dataparser)
-        apply_generator_options(config.pipeline.datamanager.dataparser, args)
-    config.output_dir = args.output_dir if args.output_dir is not None else Path("outputs") / args.method
-    if args.steps is not None:
-        if args.steps < 1:
-            raise ConfigError(f"--steps must be at least 1, got {args.steps}")
-        config.max_steps = args.steps
-    if args.seed is not None:
-        config.seed = args.seed
-    if args.device is not None:
-        config.device = args.device
-    config.progress = not args.no_progress
-    for assignment in args.overrides:
-        apply_override(config, assignment)
-    return config
+def make_config(args: argparse.Namespace, resolve_data: bool = True):
+    """The trainer config of a parsed ``va-train`` command line (``resolve_data=False``: the method's own
+    dataparser config, without reading the input or building the default scene)."""
+    return build_config(args.method, args.data, out=args.output_dir, masks=args.masks,
+                        progress=not args.no_progress, resolve_data=resolve_data,
+                        default_scene_resolution=args.default_scene_resolution, **object_options(args))
 
 
-def describe_inputs(trainer, run_dir: Path) -> None:
-    """One line on stderr about generator inputs: format, views and where the masks came from."""
-    meta = trainer.pipeline.datamanager.train.metadata
-    if "mask_source" in meta:
-        views = len(trainer.pipeline.datamanager.train)
-        print(f"{meta['format']} input: {views} training views, masks from the {meta['mask_source']} "
-              f"(check {run_dir / MASK_PICTURE})", file=sys.stderr)
+def say(line: str) -> None:
+    print(line, file=sys.stderr)
 
 
 @friendly_errors
-def main(argv: Optional[List[str]] = None) -> int:
+def main(argv: list[str] | None = None) -> int:
     methods = discover_methods()
     args = build_parser(methods).parse_args(argv)
     if args.help_config:
         print(f"--set keys of {args.method} (preset {args.preset or 'default'}): key = value, then what it does")
-        print(format_options(make_config(args, methods, resolve_data=False)), end="")
+        print(format_options(make_config(args, resolve_data=False)), end="")
         return 0
-    config = make_config(args, methods)
+    config = make_config(args)
     run_dir = Path(config.output_dir)
     check_output_dir(run_dir, "--output-dir")
-    from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints, train_run
-
-    if not args.resume and list_checkpoints(run_dir):
-        raise ConfigError(f"{run_dir} already holds checkpoints; pass --resume to continue, "
-                          "or choose another --output-dir")
-    trainer = config.setup()
-    describe_inputs(trainer, run_dir)
     try:
-        record = train_run(config, resume=args.resume, trainer=trainer, on_resume=lambda step: print(
-            f"resuming {config.method_name} from step {step}", file=sys.stderr)).record
+        train(config, resume=args.resume, on_message=say)
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with --resume",
               file=sys.stderr)
         return EXIT_INTERRUPTED
+    record = (training_records(run_dir) or [{}])[-1]
     summary = ", ".join(f"{k} {record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record)
-    print(f"trained {config.method_name} for {trainer.step} steps in {trainer.train_seconds:.1f} s ({summary}); "
-          f"run folder {run_dir}")
-    health = trainer.guard.summary()
-    if health:
-        print(f"warning: {health}", file=sys.stderr)
+    print(f"trained {config.method_name} for {record.get('step', 0)} steps in {record.get('train_seconds', 0):.1f} s"
+          f"{f' ({summary})' if summary else ''}; run folder {run_dir}")
     if args.export_mesh:
-        from va_plugin.export.mesh import export_run_mesh
-
-        path = export_run_mesh(trainer.pipeline, run_dir / "mesh.ply")
+        path = export_mesh(run_dir, texture=False, device=args.device).path
         print(f"mesh written to {path}")
     print(f"next: va-export mesh --load-dir {run_dir} --texture   (textured mesh: {run_dir / 'mesh.glb'})")
     return 0

@@ -8,9 +8,10 @@ import pickle
 import random
 import time
 import warnings
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Callable, Dict, List, Optional, Type
+from typing import Any
 
 import numpy as np
 import torch
@@ -22,7 +23,7 @@ from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError
-from va_plugin.pipelines.base import Pipeline, PipelineConfig
+from va_plugin.pipelines.base import PipelineConfig
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.memory import keep_freed_memory
 from va_plugin.utils.stages import stage, timed
@@ -35,12 +36,12 @@ CHECKPOINT_GLOB = "step-*.ckpt"
 class TrainerConfig(InstantiateConfig):
     """Everything a training run needs: the method's pipeline, its optimizers and the run's options."""
 
-    _target: Type = field(default_factory=lambda: Trainer)
+    _target: type = field(default_factory=lambda: Trainer)
     method_name: str = "unnamed"
     """Registered name of the method (checked when resuming)."""
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     """Data manager and model."""
-    optimizers: Dict[str, OptimizerConfig] = field(
+    optimizers: dict[str, OptimizerConfig] = field(
         default_factory=lambda: {"fields": OptimizerConfig(), "variance": OptimizerConfig()})
     """One optimizer config per parameter group the model reports."""
     scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
@@ -75,7 +76,7 @@ class TrainerConfig(InstantiateConfig):
     """What counts as a bad step (non-finite, blow-up) and how the run recovers from it."""
 
 
-def schedule_horizon(config: "TrainerConfig") -> int:
+def schedule_horizon(config: TrainerConfig) -> int:
     """The step at which a run's schedules end: ``min(max_steps, schedule_steps)``, or ``max_steps`` when
     ``schedule_steps`` is 0."""
     steps, horizon = int(config.max_steps), int(config.schedule_steps)
@@ -99,7 +100,7 @@ def atomic_save(obj: Any, path: Path) -> None:
     os.replace(tmp, path)
 
 
-def list_checkpoints(run_dir: Path) -> List[Path]:
+def list_checkpoints(run_dir: Path) -> list[Path]:
     """Checkpoints of a run, oldest first."""
     return sorted((Path(run_dir) / CHECKPOINT_DIR).glob(CHECKPOINT_GLOB))
 
@@ -158,7 +159,7 @@ class _TolerantPickle:
     __name__ = "pickle"
 
 
-def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> Dict[str, Any]:
+def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
     """The newest readable checkpoint of a run; falls back to older ones when the newest is corrupt."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
@@ -173,7 +174,7 @@ def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> Dict[str, Any]:
             if not isinstance(state, dict) or "model" not in state or "step" not in state:
                 raise ValueError("not a va-plugin checkpoint")
             if problems:
-                warnings.warn(f"skipped unreadable checkpoint(s): {'; '.join(problems)}")
+                warnings.warn(f"skipped unreadable checkpoint(s): {'; '.join(problems)}", stacklevel=2)
             state["path"] = str(path)
             return state
         except Exception as exc:  # a corrupt file can raise nearly anything while unpickling
@@ -206,8 +207,8 @@ class Trainer:
         self.pipeline = config.pipeline.setup(device=self.device, max_steps=self.horizon)
         self.model = self.pipeline.model
         self.optimizer = self._make_optimizer()
-        self.lr_multipliers: Dict[str, float] = {name: 1.0 for name in self.group_names}
-        self.callbacks: List[TrainingCallback] = list(self.model.training_callbacks())
+        self.lr_multipliers: dict[str, float] = dict.fromkeys(self.group_names, 1.0)
+        self.callbacks: list[TrainingCallback] = list(self.model.training_callbacks())
         self.callback_attributes = TrainingCallbackAttributes(
             pipeline=self.pipeline, max_steps=config.max_steps, run_dir=self.run_dir, progress=config.progress,
             announce=self.announce, schedule_steps=self.horizon)
@@ -243,7 +244,7 @@ class Trainer:
             group["lr"] = base * factor * self.lr_multipliers.get(group["name"], 1.0) * self.guard.lr_scale
 
     # -- checkpoints ----------------------------------------------------------------------------
-    def state_dict(self) -> Dict[str, Any]:
+    def state_dict(self) -> dict[str, Any]:
         return {
             "method_name": self.config.method_name,
             "step": self.step,
@@ -268,7 +269,7 @@ class Trainer:
             stale.unlink(missing_ok=True)
         return path
 
-    def load_state(self, state: Dict[str, Any]) -> None:
+    def load_state(self, state: dict[str, Any]) -> None:
         if state.get("method_name") != self.config.method_name:
             raise CheckpointError(f"checkpoint {state.get('path')} is of method {state.get('method_name')!r}, "
                                   f"not {self.config.method_name!r}")
@@ -318,7 +319,7 @@ class Trainer:
         write_records(self.run_dir, kept)
 
     # -- logging --------------------------------------------------------------------------------
-    def log(self, record: Dict[str, Any]) -> None:
+    def log(self, record: dict[str, Any]) -> None:
         """Append one record to the run's metrics.jsonl."""
         append_record(self.run_dir, record)
 
@@ -342,7 +343,7 @@ class Trainer:
                 if factors:
                     self.lr_multipliers.update(factors)
 
-    def _step(self) -> Dict[str, float]:
+    def _step(self) -> dict[str, float]:
         self._set_learning_rates(self.step)
         self.optimizer.zero_grad(set_to_none=True)
         loss_dict, metrics = self.pipeline.train_step(self.step)
@@ -374,7 +375,7 @@ class Trainer:
         record.update(metrics)
         return record
 
-    def run_step(self) -> tuple[Dict[str, Any], float]:
+    def run_step(self) -> tuple[dict[str, Any], float]:
         """One training step with its callbacks (no logging, evaluation or checkpoint): its record and
         its wall seconds, which are added to ``train_seconds``."""
         start = time.perf_counter()
@@ -386,16 +387,17 @@ class Trainer:
         self.step += 1
         return record, elapsed
 
-    def train(self) -> Dict[str, Any]:
-        """Train to ``max_steps`` (from the current step); returns the final log record."""
+    def train(self, on_step: Callable[[int, int, dict[str, float]], None] | None = None) -> dict[str, Any]:
+        """Train to ``max_steps`` (from the current step); returns the final log record. ``on_step(step,
+        max_steps, losses)`` is called after every step."""
         cfg = self.config
         self._write_config()
         if self.step == 0:
             self.pipeline.datamanager.save_mask_picture(self.run_dir)
         bar = tqdm(total=cfg.max_steps, initial=self.step, disable=not cfg.progress, dynamic_ncols=True,
                    desc=cfg.method_name, leave=True)
-        record: Dict[str, Any] = {}
-        recent: List[float] = []
+        record: dict[str, Any] = {}
+        recent: list[float] = []
         while self.step < cfg.max_steps:
             record, elapsed = self.run_step()
             recent = (recent + [elapsed])[-20:]
@@ -407,6 +409,8 @@ class Trainer:
             if self.step % cfg.log_every == 0 or self.step == cfg.max_steps:
                 self.log(record)
             bar.set_postfix({k: f"{record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record})
+            if on_step is not None:
+                on_step(self.step, cfg.max_steps, {k: v for k, v in record.items() if isinstance(v, float)})
             if cfg.eval_every > 0 and self.step % cfg.eval_every == 0 and self.step < cfg.max_steps:
                 metrics, _ = self.pipeline.evaluate_views(cfg.eval_views)
                 if metrics:
@@ -431,24 +435,25 @@ class TrainedRun:
     the run resumed from (None for a fresh run)."""
 
     trainer: Trainer
-    record: Dict[str, Any]
-    resumed_from: Optional[int]
+    record: dict[str, Any]
+    resumed_from: int | None
 
 
-def train_run(config: TrainerConfig, resume: bool = True, trainer: Optional[Trainer] = None,
-              on_resume: Optional[Callable[[int], None]] = None) -> TrainedRun:
+def train_run(config: TrainerConfig, resume: bool = True, trainer: Trainer | None = None,
+              on_resume: Callable[[int], None] | None = None,
+              on_step: Callable[[int, int, dict[str, float]], None] | None = None) -> TrainedRun:
     """Train a run folder to its budget: the one way every command and benchmark trains a run.
 
     With ``resume``, continue from the newest checkpoint in ``config.output_dir`` (calling
     ``on_resume(step)`` first). Ctrl-C writes a checkpoint and raises :class:`TrainingInterrupted`; a
     model that renders nothing on the foreground raises :class:`~va_plugin.engine.health.UnusableModel`.
-    ``trainer``: one already set up from ``config``."""
+    ``trainer``: one already set up from ``config``; ``on_step``: see :meth:`Trainer.train`."""
     trainer = config.setup() if trainer is None else trainer
     resumed_from = trainer.step if resume and trainer.resume() else None
     if resumed_from is not None and on_resume is not None:
         on_resume(resumed_from)
     try:
-        record = trainer.train()
+        record = trainer.train(on_step)
     except KeyboardInterrupt:
         raise TrainingInterrupted(trainer.step, trainer.save_checkpoint()) from None
     check_usable(trainer.pipeline, config.health, trainer.step)

@@ -1,0 +1,521 @@
+"""The Python API: reconstruct an object, or build a config, train, export and evaluate step by step.
+
+Every command (``va-train``, ``va-recon``, ``va-batch``, ``va-demo``, ``va-export``, ``va-eval``) and every
+benchmark runner goes through these functions, so a notebook gets exactly what the command line gets::
+
+    import va_plugin
+
+    result = va_plugin.reconstruct("strip.png", out="runs/chair")   # train, mesh, texture, turntable
+    print(result.textured_mesh, result.seconds)
+
+    config = va_plugin.build_config("neus", data="strip.png", steps=500, overrides={"seed": 1})
+    run = va_plugin.train(config)                                    # the run folder
+    files = va_plugin.export_mesh(run, texture=True)
+    scores = va_plugin.evaluate(run)                                  # scenes with ground truth only
+
+A bad input or option raises :class:`~va_plugin.errors.VAError` (one line, before any work); Ctrl-C during
+training saves a checkpoint and raises :class:`~va_plugin.engine.trainer.TrainingInterrupted` (a
+``KeyboardInterrupt``); the same call with ``resume=True`` continues the run.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import time
+import warnings
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import torch
+import trimesh
+
+from va_plugin.config import apply_override
+from va_plugin.data.datamanager import MASK_PICTURE
+from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
+from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.data.scenes.builder import ensure_default_scene
+from va_plugin.engine.trainer import (
+    TrainerConfig,
+    TrainingInterrupted,
+    list_checkpoints,
+    load_checkpoint,
+    schedule_horizon,
+    train_run,
+)
+from va_plugin.errors import CheckpointError, ConfigError
+from va_plugin.eval.evaluate import evaluate_run, ground_truth_mesh_path
+from va_plugin.eval.mesh_render import textured_turntable
+from va_plugin.export.atlas import MAX_TEXTURE_FACES
+from va_plugin.export.mesh import MESH_FORMATS, extract_mesh, write_mesh
+from va_plugin.export.render import render_test_views, render_turntable
+from va_plugin.export.texture import check_texture_size, texture_run_mesh
+from va_plugin.export.writing import check_texture_output
+from va_plugin.pipelines.base import Pipeline
+from va_plugin.registry import discover_methods
+from va_plugin.utils.device import pick_device
+from va_plugin.utils.memory import check_image_side, check_mesh_resolution, check_render_size
+
+__all__ = [
+    "QUALITIES", "RECOMMENDED_METHOD", "VIEW_COUNTS", "LoadedRun", "MeshFiles", "Reconstruction",
+    "TrainingInterrupted", "build_config", "cache_dir", "evaluate", "export_mesh", "load_run", "reconstruct",
+    "render", "train",
+]
+
+RECOMMENDED_METHOD = "neus"
+QUALITIES = {"fast": "fast", "default": None, "accurate": "accurate"}
+"""``quality`` -> the method's preset."""
+VIEW_COUNTS = (4, 8, 12, 16)
+"""SyncDreamer: the training view counts one can ask for (uniform in azimuth), besides ``"all"``."""
+MESH_FILE = "mesh.ply"
+TEXTURED_MESH_FILE = "mesh.glb"
+TURNTABLE_DIR = "turntable"
+SUMMARY_FILE = "summary.json"
+EVAL_FILE = "eval.json"
+METRICS = ("cd", "iou", "fscore", "psnr", "ssim", "lpips")
+"""The scores :func:`reconstruct` reports for an object with ground truth."""
+
+# generator option -> (dataparser option, the formats that have it)
+GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"), "elevation": ("elevation_deg", "syncdreamer"),
+                     "rig": ("rig", "zero123pp"), "masks": ("masks", "syncdreamer, zero123pp and wonder3d")}
+Progress = Callable[[int, int, dict[str, float]], None]
+"""``progress(step, total, losses)``: called after every training step."""
+
+
+def cache_dir() -> Path:
+    """Where generated default data lives (``$VA_PLUGIN_CACHE`` or ``~/.cache/va-plugin``)."""
+    return Path(os.environ.get("VA_PLUGIN_CACHE", Path.home() / ".cache" / "va-plugin"))
+
+
+def default_scene(resolution: int = 256) -> Path:
+    """The embedded default scene (a procedural mug on the SyncDreamer rig), built on first use."""
+    return ensure_default_scene(cache_dir() / f"default-scene-{resolution}", resolution=resolution)
+
+
+def _override_text(key: str, value: Any) -> str:
+    """``key=value`` as ``--set`` reads it (lists as JSON, booleans as true/false)."""
+    if isinstance(value, bool):
+        value = "true" if value else "false"
+    elif isinstance(value, (list, tuple)):
+        value = json.dumps(list(value))
+    return f"{key.replace('__', '.')}={value}"
+
+
+def _override_list(overrides: Mapping[str, Any] | Iterable[str] | None) -> list[str]:
+    if overrides is None:
+        return []
+    if isinstance(overrides, Mapping):
+        return [_override_text(key, value) for key, value in overrides.items()]
+    if isinstance(overrides, str):
+        return [overrides]
+    return list(overrides)
+
+
+def _apply_generator_options(parser_config, given: dict[str, Any]) -> None:
+    """Copy the generator options that were given onto the dataparser config, refusing ones it lacks."""
+    for name, (option, formats) in GENERATOR_OPTIONS.items():
+        value = given.get(name)
+        if value is None:
+            continue
+        if value == "all":  # every view the input has: the generators' parsers train on all by default
+            if hasattr(parser_config, option):
+                setattr(parser_config, option, max(VIEW_COUNTS))
+            continue
+        if not hasattr(parser_config, option):
+            raise ConfigError(f"--{name} applies to {formats} inputs only")
+        setattr(parser_config, option, value)
+
+
+def check_views(views: Any) -> Any:
+    """``views``: one of :data:`VIEW_COUNTS`, ``"all"`` or None; anything else is refused."""
+    if views is None or views == "all" or (isinstance(views, int) and not isinstance(views, bool)
+                                           and views in VIEW_COUNTS):
+        return views
+    raise ConfigError(f"views {views!r} is not one of 4, 8, 12, 16 or all")
+
+
+def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = None, *, preset: str | None = None,
+                 steps: int | None = None, seed: int | None = None, device: str | None = None,
+                 out: str | Path | None = None, views: int | str | None = None, elevation: float | None = None,
+                 rig: str | None = None, masks: str | Path | None = None, data_format: str = "auto",
+                 overrides: Mapping[str, Any] | Iterable[str] | None = None, progress: bool = True,
+                 resolve_data: bool = True, default_scene_resolution: int = 256) -> TrainerConfig:
+    """The trainer config of ``method`` on ``data``: what ``va-train`` trains for the same options.
+
+    ``data``: a generator output or scene folder (its format detected unless ``data_format`` names it);
+    None: the embedded default scene. ``preset``: a named variant of the method. ``views``, ``elevation``:
+    SyncDreamer strips; ``rig``: Zero123++ grids; ``masks``: a mask folder or image for generator inputs.
+    ``overrides``: ``{"pipeline.model.eikonal_weight": 0.05}`` (or ``"key=value"`` strings, or ``__`` for the
+    dots), applied last. ``out``: the run folder (default ``outputs/METHOD``). ``resolve_data=False`` keeps
+    the method's own dataparser config, without reading the input or building the default scene."""
+    methods = discover_methods()
+    if method not in methods:
+        raise ConfigError(f"unknown method {method!r}; known methods: {', '.join(methods)}")
+    if data_format != "auto" and data_format not in FORMATS:
+        raise ConfigError(f"unknown data format {data_format!r}; use auto or one of {', '.join(FORMATS)}")
+    config = methods[method].make_config(preset)
+    config.method_name = method
+    if data is None and resolve_data:
+        data = default_scene(default_scene_resolution)
+    if data is not None:
+        config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), data_format,
+                                                                    config.pipeline.datamanager.dataparser)
+        _apply_generator_options(config.pipeline.datamanager.dataparser,
+                                 {"views": check_views(views), "elevation": elevation, "rig": rig,
+                                  "masks": None if masks is None else Path(masks)})
+    config.output_dir = Path(out) if out is not None else Path("outputs") / method
+    if steps is not None:
+        if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
+            raise ConfigError(f"--steps must be at least 1, got {steps}")
+        config.max_steps = steps
+    if seed is not None:
+        config.seed = seed
+    if device is not None:
+        config.device = device
+    config.progress = progress
+    for assignment in _override_list(overrides):
+        apply_override(config, assignment)
+    return config
+
+
+def input_summary(pipeline: Pipeline, run_dir: Path) -> str | None:
+    """One line about generator inputs (format, views, where the masks came from); None for scenes."""
+    meta = pipeline.datamanager.train.metadata
+    if "mask_source" not in meta:
+        return None
+    return (f"{meta['format']} input: {len(pipeline.datamanager.train)} training views, masks from the "
+            f"{meta['mask_source']} (check {Path(run_dir) / MASK_PICTURE})")
+
+
+def _train(config: TrainerConfig, resume: bool, progress: Progress | None,
+           on_message: Callable[[str], None] | None) -> int | None:
+    """:func:`train`'s work; the step the run resumed from (None for a fresh run)."""
+    run_dir = Path(config.output_dir)
+    if not resume and list_checkpoints(run_dir):
+        raise ConfigError(f"{run_dir} already holds checkpoints; pass --resume to continue, "
+                          "or choose another --output-dir")
+    say = on_message or _quiet
+    trainer = config.setup()
+    line = input_summary(trainer.pipeline, run_dir)
+    if line:
+        say(line)
+    done = train_run(config, resume=resume, trainer=trainer, on_step=progress,
+                     on_resume=lambda step: say(f"resuming {config.method_name} from step {step}"))
+    health = done.trainer.guard.summary()
+    if health:
+        warnings.warn(health, stacklevel=3)
+    return done.resumed_from
+
+
+def _quiet(line: str) -> None:
+    """The default ``on_message``: nothing is shown."""
+
+
+def train(config: TrainerConfig, *, resume: bool = False, progress: Progress | None = None,
+          on_message: Callable[[str], None] | None = None) -> Path:
+    """Train ``config`` into its run folder (``config.output_dir``) and return that folder.
+
+    ``resume``: continue from the folder's newest checkpoint (a folder without one starts afresh); without
+    it, a folder that holds checkpoints is refused. ``progress(step, total, losses)`` is called after each
+    step. ``on_message(line)`` gets the lines a user should see (the inputs found, a resume). A run whose
+    health guard intervened ends with a warning. Ctrl-C saves a checkpoint and raises
+    :class:`TrainingInterrupted`."""
+    _train(config, resume, progress, on_message)
+    return Path(config.output_dir)
+
+
+@dataclass
+class LoadedRun:
+    """A run folder read back: its pipeline (trained weights loaded, eval mode) and newest checkpoint."""
+
+    path: Path
+    pipeline: Pipeline
+    state: dict[str, Any]
+
+    @property
+    def config(self) -> TrainerConfig:
+        return self.state["config_object"]
+
+    def parts(self) -> tuple[Pipeline, dict[str, Any]]:
+        """(pipeline, checkpoint state), for ``pipeline, state = load_run(run).parts()``."""
+        return self.pipeline, self.state
+
+
+def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRun:
+    """The run folder's pipeline with its newest readable checkpoint loaded (a :class:`LoadedRun` passes
+    through as it is)."""
+    if isinstance(run, LoadedRun):
+        return run
+    state = load_checkpoint(Path(run), map_location="cpu")
+    config = state.get("config_object")
+    if config is None:
+        raise CheckpointError(f"{state['path']} carries no config; it was not written by va-train")
+    bad = [name for name, value in state["model"].items()
+           if isinstance(value, torch.Tensor) and value.is_floating_point() and not bool(value.isfinite().all())]
+    if bad:
+        raise CheckpointError(f"{state['path']} holds NaN or infinite values ({bad[0]}"
+                              f"{' and more' if len(bad) > 1 else ''}): the run diverged; retrain it (or resume "
+                              "from a checkpoint before the divergence)")
+    config = copy.deepcopy(config)
+    torch_device = pick_device(device if device is not None else "auto")
+    pipeline = config.pipeline.setup(device=torch_device, max_steps=schedule_horizon(config))
+    try:
+        pipeline.model.load_state_dict(state["model"])
+    except RuntimeError as exc:
+        raise CheckpointError(f"{state['path']} does not fit its own config ({str(exc).splitlines()[0]})") from None
+    pipeline.model.update_step(int(state["step"]))
+    pipeline.model.eval()
+    return LoadedRun(Path(run), pipeline, state)
+
+
+@dataclass
+class MeshFiles:
+    """What :func:`export_mesh` wrote, and the meshes themselves."""
+
+    mesh: trimesh.Trimesh
+    """The marching-cubes mesh (vertex colours unless textured)."""
+    path: Path | None = None
+    """The mesh file with vertex colours (None when only the textured mesh was asked for)."""
+    textured: Any = None
+    """The textured mesh (:class:`~va_plugin.export.texture.TexturedMesh`), None without a texture."""
+    textured_paths: list[Path] = field(default_factory=list)
+    """The textured mesh's files: the mesh, then its texture atlas and bake record."""
+    report: Any = None
+    """The bake's statistics (:class:`~va_plugin.export.texture.BakeReport`), None without a texture."""
+
+    @property
+    def textured_mesh(self) -> Path | None:
+        return self.textured_paths[0] if self.textured_paths else None
+
+
+def check_mesh_options(resolution: int, texture: bool = False, texture_size: int = 1024,
+                       output: Path | None = None, max_faces: int | None = None) -> None:
+    """Refuse mesh and texture options that cannot work, before any marching cubes (one line each)."""
+    if resolution < 2:
+        raise ConfigError(f"--resolution must be at least 2, got {resolution}")
+    if output is not None and Path(output).suffix.lower() not in MESH_FORMATS:
+        raise ConfigError(f"unknown mesh format {Path(output).suffix!r}; use one of {', '.join(MESH_FORMATS)}")
+    if texture:
+        check_texture_size(texture_size)
+        if output is not None:
+            check_texture_output(Path(output))
+        if max_faces is not None and (max_faces < 0 or 0 < max_faces < 4):
+            raise ConfigError(f"--max-faces must be 0 (keep every face) or at least 4, got {max_faces}")
+    elif max_faces is not None:
+        raise ConfigError("--max-faces simplifies the mesh for its texture: it needs --texture")
+    check_mesh_resolution(resolution)
+
+
+def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution: int = 128,
+                texture_size: int = 1024, fusion: str = "robust", output: str | Path | None = None,
+                vertex_colors: str | Path | None = MESH_FILE, largest_component: bool = False,
+                max_faces: int | None = None, use_inconsistency: bool = False, harmonise: bool | None = None,
+                progress: bool = False, device: str | None = None) -> MeshFiles:
+    """The run's mesh: marching cubes of its field on a ``resolution``^3 grid, written with vertex colours
+    to ``RUN/mesh.ply`` (``vertex_colors``: another name, None for none), and with ``texture`` also
+    UV-unwrapped, baked from the input views and written to ``output`` (default ``RUN/mesh.glb``; ``.obj``
+    writes ``.obj`` + ``.mtl`` + ``.png``). ``max_faces``: simplify before the unwrap (default 40000,
+    0 keeps every face); ``fusion``: ``robust`` or ``mean`` per texel; ``harmonise=False`` skips levelling
+    the views' colour gains. Relative file names are inside the run folder."""
+    run_path = run.path if isinstance(run, LoadedRun) else Path(run)
+    out = None if output is None else run_path / output
+    if texture and out is None:
+        out = run_path / TEXTURED_MESH_FILE
+    check_mesh_options(resolution, texture, texture_size, out, max_faces)
+    loaded = load_run(run, device)
+    mesh = extract_mesh(loaded.pipeline.model, resolution=resolution, largest_component=largest_component,
+                        with_color=vertex_colors is not None or not texture)
+    files = MeshFiles(mesh)
+    if vertex_colors is not None:
+        files.path = write_mesh(mesh, run_path / vertex_colors)
+    if texture:
+        files.textured, files.report, files.textured_paths = texture_run_mesh(
+            loaded.pipeline, mesh, out, texture_size, fusion, use_inconsistency, progress=progress,
+            harmonise_views=harmonise, max_faces=MAX_TEXTURE_FACES if max_faces is None else max_faces)
+    return files
+
+
+def write_json(path: Path, data: dict[str, Any]) -> Path:
+    """Write JSON through a temporary file, so a killed call leaves no half-written file."""
+    tmp = path.with_name(path.name + ".tmp")
+    tmp.write_text(json.dumps(data, indent=2))
+    tmp.replace(path)
+    return path
+
+
+def has_ground_truth(loaded: LoadedRun) -> bool:
+    """Whether the run's scene can be scored: a scene folder with held-out views or a true mesh (a
+    generator output's other views are generated too, so they are no ground truth)."""
+    scene = isinstance(loaded.config.pipeline.datamanager.dataparser, TransformsDataParserConfig)
+    return scene and (loaded.pipeline.datamanager.test is not None or ground_truth_mesh_path(loaded.pipeline)
+                      is not None)
+
+
+def check_evaluate_options(scene: str | Path | None, mesh_resolution: int, image_scale: float) -> None:
+    """Refuse evaluation options that cannot work, before anything is loaded (one line each)."""
+    if mesh_resolution < 8 or image_scale <= 0:
+        raise ConfigError("--mesh-resolution must be at least 8 and --image-scale positive")
+    if scene is not None and not (Path(scene) / "scene.json").is_file():
+        raise ConfigError(f"{scene} holds no scene.json")
+    check_mesh_resolution(mesh_resolution, "--mesh-resolution")
+
+
+def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, mesh_resolution: int = 128,
+             image_scale: float = 1.0, max_views: int | None = None, n_samples: int = 100_000,
+             mesh: trimesh.Trimesh | None = None, render_dir: str | Path | None = None,
+             output: str | Path | None = EVAL_FILE, progress: bool = False,
+             device: str | None = None) -> dict[str, Any]:
+    """Scores of a trained run against its scene's ground truth: PSNR, SSIM, LPIPS on the held-out views
+    (rendered at ``image_scale``, at most ``max_views``), Chamfer distance, volume IoU and F-score of its
+    mesh (``mesh``, or marching cubes at ``mesh_resolution``). ``scene``: a scene folder with
+    ``scene.json`` other than the run's data. Written to ``RUN/eval.json`` (``output``; None: not
+    written); ``render_dir`` also keeps the renders."""
+    check_evaluate_options(scene, mesh_resolution, image_scale)
+    loaded = load_run(run, device)
+    if loaded.pipeline.datamanager.test is not None:
+        cameras = loaded.pipeline.datamanager.test.cameras
+        check_render_size(cameras.width, cameras.height, image_scale, "--image-scale")
+    result = evaluate_run(loaded.pipeline, loaded.state, None if scene is None else Path(scene), mesh_resolution,
+                          image_scale, max_views, n_samples, progress=progress, mesh=mesh,
+                          render_dir=None if render_dir is None else Path(render_dir))
+    if output is not None:
+        write_json(loaded.path / output, result)
+    return result
+
+
+def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, scale: float = 1.0,
+           max_views: int | None = None, frames: int = 24, turntable_resolution: int = 128,
+           device: str | None = None) -> tuple[list[Path], list[Path]]:
+    """Held-out views (or the training views when the run has none) and a turntable of the field, written
+    to ``out_dir`` (default ``RUN/renders``); the held-out files and the turntable files."""
+    if scale <= 0 or frames < 1 or turntable_resolution < 2:
+        raise ConfigError("--scale must be positive, --frames at least 1 and --turntable-resolution at least 2")
+    loaded = load_run(run, device)
+    test = loaded.pipeline.datamanager.test
+    views = test if test is not None else loaded.pipeline.datamanager.train
+    check_render_size(views.cameras.width, views.cameras.height, scale)
+    check_image_side(turntable_resolution, "--turntable-resolution")
+    out = loaded.path / "renders" if out_dir is None else Path(out_dir)
+    held_out = render_test_views(loaded.pipeline, out / "test_views", scale=scale, max_views=max_views)
+    turntable = render_turntable(loaded.pipeline.model, out / "turntable", n_frames=frames,
+                                 resolution=turntable_resolution)
+    return held_out, turntable
+
+
+@dataclass
+class Reconstruction:
+    """What :func:`reconstruct` made: the files, the figures and the config it trained."""
+
+    run_dir: Path
+    mesh: Path
+    """``RUN/mesh.ply``: the mesh with vertex colours."""
+    textured_mesh: Path | None
+    """``RUN/mesh.glb``: the mesh with its baked texture (None with ``texture=False``)."""
+    turntable: Path | None
+    """``RUN/turntable/turntable.mp4`` of the textured mesh (None without texture or frames)."""
+    summary: Path
+    """``RUN/summary.json``: everything below, as JSON."""
+    seconds: float
+    """Wall seconds of the call (training, mesh, texture, turntable, scores)."""
+    train_seconds: float
+    """Seconds of training, over every session of the run."""
+    steps: int
+    views: int
+    """Training views."""
+    masks: str
+    """Where the object masks came from."""
+    config: TrainerConfig
+    scores: dict[str, float] = field(default_factory=dict)
+    """Scores against ground truth (scene folders only; see :data:`METRICS`)."""
+    resumed_from_step: int | None = None
+    record: dict[str, Any] = field(default_factory=dict)
+    """The summary as written to ``summary.json``."""
+    files: MeshFiles | None = field(default=None, repr=False)
+    """The meshes themselves (for pictures of them without reading the files back)."""
+
+
+def reconstruct(input: str | Path, out: str | Path | None = None, method: str = RECOMMENDED_METHOD,
+                quality: str = "default", views: int | str = "all", steps: int | None = None,
+                device: str = "auto", texture: bool = True, progress: Progress | None = None, *,
+                seed: int | None = None, preset: str | None = None, masks: str | Path | None = None,
+                elevation: float | None = None, rig: str | None = None, data_format: str = "auto",
+                resume: bool = False, texture_size: int = 1024, mesh_resolution: int = 128,
+                turntable_frames: int = 36, fusion: str = "robust", threads: int = 0,
+                evaluate_options: Mapping[str, Any] | None = None,
+                show_progress: bool = False, on_message: Callable[[str], None] | None = None,
+                overrides: Mapping[str, Any] | Iterable[str] | None = None, **more_overrides: Any) -> Reconstruction:
+    """A generator output (or scene folder) to a textured mesh, in one call: what ``va-recon`` does.
+
+    Trains ``method`` (``quality``: ``fast``, ``default`` or ``accurate``; ``preset`` names any preset of
+    the method instead) on ``views`` of the input, then
+    writes ``RUN/mesh.ply``, the textured ``RUN/mesh.glb`` and a turntable of it (unless ``texture`` is
+    False), scores the run when the input has ground truth, and writes ``RUN/summary.json``. ``out``:
+    the run folder (default ``outputs/recon/<input name>``); ``evaluate_options``: keywords of
+    :func:`evaluate` for the scores. ``progress(step, total, losses)``: called
+    after each training step; ``show_progress``: progress bars on stderr; ``on_message(line)``: the stage
+    lines. ``overrides`` are config overrides as in :func:`build_config`, and so is any other keyword
+    (``pipeline__model__eikonal_weight=0.05``).
+    Interrupted (Ctrl-C), it saves a checkpoint and raises :class:`TrainingInterrupted`; call again with
+    ``resume=True`` to continue."""
+    started = time.perf_counter()
+    source = Path(input).expanduser()
+    if quality not in QUALITIES:
+        raise ConfigError(f"quality {quality!r} is not one of {', '.join(QUALITIES)}")
+    if not source.exists():
+        raise ConfigError(f"input not found: {source}")
+    if texture:
+        check_texture_size(texture_size)
+    if mesh_resolution < 8:
+        raise ConfigError(f"--mesh-resolution must be at least 8, got {mesh_resolution}")
+    if turntable_frames < 0:
+        raise ConfigError(f"--turntable-frames must be 0 or more, got {turntable_frames}")
+    run_dir = Path(out) if out is not None else Path("outputs") / "recon" / source.resolve().stem
+    if list_checkpoints(run_dir) and not resume:
+        raise ConfigError(f"{run_dir} already holds a run; pass --resume to continue it, or choose another --out")
+    config = build_config(method, source, preset=QUALITIES[quality] if preset is None else preset, steps=steps,
+                          seed=seed, device=device, out=run_dir, views=views, elevation=elevation, rig=rig,
+                          masks=masks, data_format=data_format,
+                          overrides=[*_override_list(overrides), *_override_list(more_overrides)],
+                          progress=show_progress)
+    config.num_threads = threads
+    say = on_message or _quiet
+    say(f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} -> {run_dir}")
+    if threads > 0:
+        torch.set_num_threads(threads)
+    # a folder with a checkpoint continues only with resume (refused above otherwise); a fresh one starts
+    resumed_from = _train(config, True, progress, say)
+    loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
+    say(f"extracting the mesh ({mesh_resolution}^3 grid)")
+    if texture:
+        say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
+    files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
+                        fusion=fusion, progress=show_progress)
+    turntable = None
+    if texture and turntable_frames:
+        turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
+                                            progress=show_progress))
+    scores: dict[str, float] = {}
+    if has_ground_truth(loaded):
+        result = evaluate(loaded, mesh=files.mesh, **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
+        scores = {name: result[name] for name in METRICS if name in result}
+    train_views = loaded.pipeline.datamanager.train
+    record: dict[str, Any] = {
+        "input": str(input), "method": method, "quality": quality,
+        "seconds": round(time.perf_counter() - started, 1), "steps": int(loaded.state["step"]),
+        "train_seconds": round(float(loaded.state["train_seconds"]), 2), "views": len(train_views),
+        "masks": train_views.metadata.get("mask_source", "scene's alpha"), "mesh": str(files.path)}
+    if files.textured_mesh is not None:
+        record["textured_mesh"] = str(files.textured_mesh)
+    if turntable is not None:
+        record["turntable"] = str(turntable)
+    record["resumed_from_step"] = resumed_from
+    record.update(scores)
+    summary = write_json(run_dir / SUMMARY_FILE, record)
+    return Reconstruction(run_dir=run_dir, mesh=Path(files.path), textured_mesh=files.textured_mesh,
+                          turntable=turntable, summary=summary, seconds=record["seconds"],
+                          train_seconds=record["train_seconds"], steps=record["steps"], views=record["views"],
+                          masks=record["masks"], config=config, scores=scores, resumed_from_step=resumed_from,
+                          record=record, files=files)
