@@ -35,9 +35,9 @@ METRICS = ("cd", "iou", "psnr", "ssim", "lpips", "wall_seconds", "train_seconds"
 
 def build(root: Path, data_root: Path, name: str, views: int, level: int) -> Path:
     """The object's scene with ``views`` inputs whose held-out views are the off-rig ones only."""
+    from va_plugin.bench.scenes.builder import build_scene
+    from va_plugin.bench.scenes.rig import view_angles
     from va_plugin.data.rigs import RIG_VIEWS, input_view_ids
-    from va_plugin.data.scenes.builder import build_scene
-    from va_plugin.data.scenes.rig import view_angles
 
     out = root / f"{name}-l{level}-v{views}"
     if (out / "scene.json").is_file():
@@ -82,8 +82,8 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
 
 def texture_fidelity(scene: Path) -> float:
     """PSNR of the baked ground-truth texture rendered at the rig's views against the renders (on white)."""
-    from va_plugin.data.scenes.rig import benchmark_cameras
-    from va_plugin.data.scenes.sources import load_source
+    from va_plugin.bench.scenes.rig import benchmark_cameras
+    from va_plugin.bench.scenes.sources import load_source
     from va_plugin.eval.image import psnr
 
     info = json.loads((scene / "scene.json").read_text())
@@ -178,8 +178,8 @@ def main(argv=None) -> int:
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("outputs/bench/all-views"))
     args = parser.parse_args(argv)
+    from va_plugin.bench.scenes import gso
     from va_plugin.config import apply_override
-    from va_plugin.data.scenes import gso
     from va_plugin.errors import VAError
     from va_plugin.registry import get_method
 

@@ -37,7 +37,7 @@ from va_plugin.bench.report import (
     write_outputs,
 )
 from va_plugin.bench.rows import RowSpec, scene_of
-from va_plugin.data.scenes.inconsistency import parse_kinds
+from va_plugin.bench.scenes.inconsistency import parse_kinds
 from va_plugin.errors import ConfigError
 from va_plugin.registry import get_method
 

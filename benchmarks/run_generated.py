@@ -34,7 +34,7 @@ import time
 from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
-from va_plugin.adaptive.phases import residual_spread_db
+from va_plugin.analysis.consistency import residual_spread_db
 from va_plugin.engine.metrics_log import read_records
 
 REPO = Path(__file__).resolve().parents[1]

@@ -49,12 +49,13 @@ import torch
 from torch import nn
 
 from va_plugin.adaptive.attention import ViewAttention
-from va_plugin.api import build_config, cache_dir
+from va_plugin.api import build_config
+from va_plugin.bench.catalog import SceneSpec, ensure_scene
 from va_plugin.bench.cli import duration
 from va_plugin.bench.presets import BACKBONES, EvalSettings, get_preset
 from va_plugin.bench.report import fmt, machine_info, markdown_table, plot_stacked_bars, plot_time_curves, write_json
 from va_plugin.bench.rows import ADAPTIVE_OVERRIDES, checkpoint_along, evaluate_checkpoints
-from va_plugin.bench.scenes import SceneSpec, ensure_scene
+from va_plugin.bench.scenes import cache_dir, default_scene
 from va_plugin.cli.common import friendly_errors
 from va_plugin.config import apply_override
 from va_plugin.engine.metrics_log import training_records
@@ -90,7 +91,8 @@ def method_config(method: str, args: argparse.Namespace, scene: Path | None, run
     """The trainer config of one method's run, as ``va-train`` builds it from the same flags, with a
     checkpoint every ``steps / --checkpoints`` steps."""
     overrides = list(get_preset("smoke").overrides_for(backbone_of(method) or "")) if args.smoke else []
-    config = build_config(method, scene, out=run_dir, progress=False, seed=args.seed, device=args.device,
+    data = scene if scene is not None else default_scene()
+    config = build_config(method, data, out=run_dir, progress=False, seed=args.seed, device=args.device,
                           preset=args.preset or None, steps=args.steps, overrides=[*overrides, *args.overrides])
     if hasattr(config.pipeline.model.field, "diagnostics_scale"):  # view-adaptive: no pictures on the clock
         for override in ADAPTIVE_OVERRIDES + (SMOKE_ADAPTIVE if args.smoke else ()):

@@ -76,7 +76,7 @@ def main() -> int:
     if args.mode == "compare" and not args.file.is_file():
         sys.exit(f"error: {args.file} does not exist; record it first with the code to compare against")
     torch.set_num_threads(1)
-    from va_plugin.data.scenes.builder import build_procedural_scene
+    from va_plugin.bench.scenes.builder import build_procedural_scene
 
     with tempfile.TemporaryDirectory() as tmp:
         scene = build_procedural_scene(Path(tmp), "mug", n_views=4, resolution=24)

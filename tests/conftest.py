@@ -22,7 +22,7 @@ def tiny_scene(tmp_path_factory) -> Path:
     ``$VA_TEST_SCENE``: such a scene built beforehand (a machine without open3d, which renders it)."""
     if os.environ.get("VA_TEST_SCENE"):
         return Path(os.environ["VA_TEST_SCENE"])
-    from va_plugin.data.scenes.builder import build_procedural_scene
+    from va_plugin.bench.scenes.builder import build_procedural_scene
 
     return build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=4, resolution=24)
 
@@ -58,7 +58,7 @@ def tiny_trained_run(tmp_path_factory, resolution: int = 32, steps: int = 2, wit
     scene.json, so va-eval skips the geometry metrics (a 100k-sample Chamfer: a minute on a busy machine)."""
     import json
 
-    from va_plugin.data.scenes.builder import build_procedural_scene
+    from va_plugin.bench.scenes.builder import build_procedural_scene
 
     scene = build_procedural_scene(tmp_path_factory.mktemp("scene"), "mug", n_views=4, resolution=resolution)
     if not with_mesh:
@@ -109,7 +109,7 @@ def write_syncdreamer_strip(path: Path, tile: int = 32, alpha: bool = False) -> 
 
     from va_plugin.data import rigs
     from va_plugin.data.images import write_image
-    from va_plugin.data.scenes.raycast import MeshRenderer, position_albedo
+    from va_plugin.raycast import MeshRenderer, position_albedo
 
     renderer = MeshRenderer(toy_object(), position_albedo(toy_albedo))
     rgb, a = render_views(renderer, rigs.syncdreamer_rig(tile, pixel_offset=0.5), (1.0, 1.0, 1.0))

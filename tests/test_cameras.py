@@ -75,7 +75,7 @@ def test_bad_poses_are_refused(bad, message):
 
 
 def test_syncdreamer_rig_camera_zero_position():
-    from va_plugin.data.scenes.rig import syncdreamer_rig
+    from va_plugin.bench.scenes.rig import syncdreamer_rig
 
     rig = syncdreamer_rig()
     assert torch.allclose(rig.centers[0], torch.tensor([1.299, 0.0, 0.75]), atol=1e-3)

@@ -1,8 +1,10 @@
-"""The import graph of ``va_plugin`` and ``method_configs`` has no circle, and every module imports on its
+"""The packages stand on floors (:data:`FLOORS`, bottom to top, as docs/architecture.md draws them): a module
+imports only from its own floor or below. The import graph has no circle, and every module imports on its
 own in a fresh interpreter with its dependencies imported first (dependency order).
 
-Imports inside functions count as edges too (an import moved into a function to dodge a circle is still a
-circle); imports under ``if TYPE_CHECKING:`` do not (they never run)."""
+Imports inside functions count as edges too (an import moved into a function to dodge a circle or a floor
+is still one); imports under ``if TYPE_CHECKING:`` do not (they never run). Imports inside functions are
+few, and each says why on its line."""
 
 from __future__ import annotations
 
@@ -130,6 +132,86 @@ def test_every_module_imports_in_dependency_order_in_a_fresh_interpreter():
               "print('ok', len(sys.modules))\n")
     result = subprocess.run([sys.executable, "-c", script], cwd=REPO, capture_output=True, text=True, timeout=300)
     assert result.returncode == 0 and result.stdout.startswith("ok"), result.stderr[-2000:]
+
+
+FLOORS = [
+    ("va_plugin.errors", "va_plugin.config", "va_plugin.rays", "va_plugin.cameras", "va_plugin.utils",
+     "va_plugin.registry", "method_configs"),
+    ("va_plugin.fields", "va_plugin.model_components", "va_plugin.raycast", "va_plugin.engine.callbacks"),
+    ("va_plugin.models", "va_plugin.adaptive", "va_plugin.data"),
+    ("va_plugin.pipelines", "va_plugin.engine"),
+    ("va_plugin.export", "va_plugin.eval"),
+    ("va_plugin.api", "va_plugin"),
+    ("va_plugin.analysis", "va_plugin.bench"),
+    ("va_plugin.cli", "va_plugin.batch", "va_plugin.bench.cli", "va_plugin.app", "method_configs.*"),
+]
+"""Bottom to top. A module's floor is that of the longest prefix naming it; ``method_configs.*`` (the
+method configs under the package, which name any part of the package) is the top floor, the package's
+``__init__`` (the list of built-in methods, no imports) the bottom one."""
+MAX_FUNCTION_IMPORTS = 10
+
+
+def floor_of(module: str) -> int:
+    best, floor = -1, None
+    for index, names in enumerate(FLOORS):
+        for name in names:
+            if name.endswith(".*"):
+                hit = module.startswith(name[:-1])
+                length = len(name) - 1
+            else:
+                hit = module == name or module.startswith(name + ".")
+                length = len(name)
+            if hit and length > best:
+                best, floor = length, index
+    assert floor is not None, f"{module} stands on no floor: add it to FLOORS"
+    return floor
+
+
+def _function_imports() -> list[str]:
+    """``path:line`` of every import of our packages inside a function (TYPE_CHECKING blocks aside)."""
+    found = []
+    for path in _modules().values():
+        tree = ast.parse(path.read_text(encoding="utf-8"))
+        for func in ast.walk(tree):
+            if not isinstance(func, (ast.FunctionDef, ast.AsyncFunctionDef)):
+                continue
+            for node in ast.walk(func):
+                module = node.module if isinstance(node, ast.ImportFrom) else (
+                    node.names[0].name if isinstance(node, ast.Import) else None)
+                if module and module.split(".")[0] in PACKAGES:
+                    found.append(f"{path.relative_to(REPO)}:{node.lineno}")
+    return sorted(set(found))
+
+
+def test_no_import_climbs_a_floor():
+    graph = import_graph()
+    climbs = [f"{module} (floor {floor_of(module) + 1}) imports {target} (floor {floor_of(target) + 1})"
+              for module, targets in sorted(graph.items()) for target in sorted(targets)
+              if floor_of(target) > floor_of(module)]
+    assert not climbs, "imports that climb the floors:\n" + "\n".join(climbs)
+
+
+def test_imports_inside_functions_are_few_and_say_why():
+    found = _function_imports()
+    assert len(found) <= MAX_FUNCTION_IMPORTS, f"{len(found)} imports inside functions: {found}"
+    lines = {}
+    for place in found:
+        path, line = place.rsplit(":", 1)
+        lines.setdefault(path, (REPO / path).read_text(encoding="utf-8").splitlines())
+        text = lines[path][int(line) - 1]
+        assert "#" in text, f"{place} imports inside a function without a one-line reason: {text.strip()}"
+
+
+def test_argparse_is_the_command_line_floor_only():
+    users = [name for name, path in _modules().items()
+             if "argparse" in _imported_names(ast.parse(path.read_text(encoding="utf-8")), name, False)
+             and floor_of(name) != len(FLOORS) - 1]
+    assert not users, f"argparse outside the command-line floor: {users}"
+
+
+def test_every_module_stands_on_a_floor():
+    for module in _modules():
+        floor_of(module)
 
 
 BELOW_THE_TRAINER = ("va_plugin.adaptive", "va_plugin.models", "va_plugin.fields", "va_plugin.model_components",

@@ -22,7 +22,6 @@ from __future__ import annotations
 
 import copy
 import json
-import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
@@ -37,7 +36,6 @@ from va_plugin.config import apply_override
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
-from va_plugin.data.scenes.builder import ensure_default_scene
 from va_plugin.engine.trainer import (
     TrainerConfig,
     TrainingInterrupted,
@@ -61,7 +59,7 @@ from va_plugin.utils.memory import check_image_side, check_mesh_resolution, chec
 
 __all__ = [
     "QUALITIES", "RECOMMENDED_METHOD", "VIEW_COUNTS", "LoadedRun", "MeshFiles", "Reconstruction",
-    "TrainingInterrupted", "build_config", "cache_dir", "evaluate", "export_mesh", "load_run", "reconstruct",
+    "TrainingInterrupted", "build_config", "evaluate", "export_mesh", "load_run", "reconstruct",
     "render", "train",
 ]
 
@@ -83,16 +81,6 @@ GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"), "elevation": ("eleva
                      "rig": ("rig", "zero123pp"), "masks": ("masks", "syncdreamer, zero123pp and wonder3d")}
 Progress = Callable[[int, int, dict[str, float]], None]
 """``progress(step, total, losses)``: called after every training step."""
-
-
-def cache_dir() -> Path:
-    """Where generated default data lives (``$VA_PLUGIN_CACHE`` or ``~/.cache/va-plugin``)."""
-    return Path(os.environ.get("VA_PLUGIN_CACHE", Path.home() / ".cache" / "va-plugin"))
-
-
-def default_scene(resolution: int = 256) -> Path:
-    """The embedded default scene (a procedural mug on the SyncDreamer rig), built on first use."""
-    return ensure_default_scene(cache_dir() / f"default-scene-{resolution}", resolution=resolution)
 
 
 def _override_text(key: str, value: Any) -> str:
@@ -141,16 +129,17 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
                  steps: int | None = None, seed: int | None = None, device: str | None = None,
                  out: str | Path | None = None, views: int | str | None = None, elevation: float | None = None,
                  rig: str | None = None, masks: str | Path | None = None, data_format: str = "auto",
-                 overrides: Mapping[str, Any] | Iterable[str] | None = None, progress: bool = True,
-                 resolve_data: bool = True, default_scene_resolution: int = 256) -> TrainerConfig:
+                 overrides: Mapping[str, Any] | Iterable[str] | None = None,
+                 progress: bool = True) -> TrainerConfig:
     """The trainer config of ``method`` on ``data``: what ``va-train`` trains for the same options.
 
     ``data``: a generator output or scene folder (its format detected unless ``data_format`` names it);
-    None: the embedded default scene. ``preset``: a named variant of the method. ``views``, ``elevation``:
+    None: the method's own dataparser config, without reading any input (``va-train`` without ``--data``
+    passes the embedded default scene of :func:`va_plugin.bench.scenes.default_scene`). ``preset``: a
+    named variant of the method. ``views``, ``elevation``:
     SyncDreamer strips; ``rig``: Zero123++ grids; ``masks``: a mask folder or image for generator inputs.
     ``overrides``: ``{"pipeline.model.eikonal_weight": 0.05}`` (or ``"key=value"`` strings, or ``__`` for the
-    dots), applied last. ``out``: the run folder (default ``outputs/METHOD``). ``resolve_data=False`` keeps
-    the method's own dataparser config, without reading the input or building the default scene."""
+    dots), applied last. ``out``: the run folder (default ``outputs/METHOD``)."""
     methods = discover_methods()
     if method not in methods:
         raise ConfigError(f"unknown method {method!r}; known methods: {', '.join(methods)}")
@@ -158,8 +147,6 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
         raise ConfigError(f"unknown data format {data_format!r}; use auto or one of {', '.join(FORMATS)}")
     config = methods[method].make_config(preset)
     config.method_name = method
-    if data is None and resolve_data:
-        data = default_scene(default_scene_resolution)
     if data is not None:
         config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), data_format,
                                                                     config.pipeline.datamanager.dataparser)

@@ -12,6 +12,7 @@ import ast
 import dataclasses
 import difflib
 import functools
+import importlib
 import inspect
 import itertools
 import json
@@ -47,6 +48,23 @@ class InstantiateConfig:
                 setattr(self, item.name, item.default)
             elif item.default_factory is not dataclasses.MISSING:
                 setattr(self, item.name, item.default_factory())
+
+
+def resolve_reference(reference: str, origin: str) -> Any:
+    """The object a ``module:attribute`` reference names (imported on use): how a config names a part that
+    lives on a floor above it (a method in the registry, the analysis a view-adaptive field runs)."""
+    if not isinstance(reference, str) or ":" not in reference:
+        raise ConfigError(f"{origin}: {reference!r} must look like module:attribute")
+    module_name, attribute = reference.split(":", 1)
+    try:
+        target: Any = importlib.import_module(module_name)
+    except ImportError as exc:
+        raise ConfigError(f"{origin}: cannot import {module_name!r} ({exc})") from None
+    for part in attribute.split("."):
+        if not hasattr(target, part):
+            raise ConfigError(f"{origin}: {module_name!r} has no attribute {attribute!r}")
+        target = getattr(target, part)
+    return target
 
 
 def to_dict(config: Any) -> Any:

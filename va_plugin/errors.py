@@ -1,6 +1,8 @@
 """User-facing errors: anything a user can cause raises ``VAError`` with one line saying what is wrong
 and how to fix it; the command-line entry points print it and exit with status 2."""
 
+import sys
+
 
 class VAError(Exception):
     """An error caused by the user's input or options; its message is shown as one line."""
@@ -17,3 +19,8 @@ class ConfigError(VAError, ValueError):
 
 class CheckpointError(VAError):
     """A checkpoint that is missing, corrupt, or belongs to another method."""
+
+
+def one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
+    """Warnings on the command line as ``warning: <message>``, without the source line."""
+    print(f"warning: {message}", file=sys.stderr if file is None else file)

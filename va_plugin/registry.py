@@ -13,13 +13,13 @@ methods without installing anything (handy for experiments and tests).
 from __future__ import annotations
 
 import copy
-import importlib
 import os
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from importlib import metadata
 
 from method_configs import BUILTIN_METHODS
+from va_plugin.config import resolve_reference
 from va_plugin.errors import ConfigError
 
 ENTRY_POINT_GROUP = "va_plugin.methods"
@@ -58,18 +58,7 @@ class MethodSpecification:
 
 def _load_reference(reference: str, origin: str) -> MethodSpecification:
     """Import ``module:attribute`` and check that it is a MethodSpecification."""
-    if ":" not in reference:
-        raise ConfigError(f"{origin}: {reference!r} must look like module:attribute")
-    module_name, attribute = reference.split(":", 1)
-    try:
-        module = importlib.import_module(module_name)
-    except ImportError as exc:
-        raise ConfigError(f"{origin}: cannot import {module_name!r} ({exc})") from None
-    spec = module
-    for part in attribute.split("."):
-        if not hasattr(spec, part):
-            raise ConfigError(f"{origin}: {module_name!r} has no attribute {attribute!r}")
-        spec = getattr(spec, part)
+    spec = resolve_reference(reference, origin)
     if not isinstance(spec, MethodSpecification):
         raise ConfigError(f"{origin}: {reference!r} is a {type(spec).__name__}, not a MethodSpecification")
     return spec

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from va_plugin.adaptive.consistency import silhouette_support
+from va_plugin.analysis.consistency import silhouette_support
 from va_plugin.data.rigs import orbit_cameras
 from va_plugin.rays import near_far_from_sphere
 
@@ -56,7 +56,7 @@ def test_no_verdict_without_two_views_or_with_an_empty_mask():
 def test_the_phase_decision_reads_the_training_masks():
     from types import SimpleNamespace
 
-    from va_plugin.adaptive.phases import input_silhouette_support
+    from va_plugin.analysis.consistency import input_silhouette_support
 
     cameras = orbit_cameras([0, 90, 180, 270], 30.0, resolution=64)
     masks = _sphere_masks(cameras)
@@ -69,7 +69,7 @@ def test_the_phase_decision_reads_the_training_masks():
 
 def test_colour_cast_separates_a_white_balance_shift_from_brightness():
     """Hand-computed: a common gain is brightness, not a cast; a per-channel spread is."""
-    from va_plugin.adaptive.consistency import ColourCast
+    from va_plugin.analysis.consistency import ColourCast
 
     bright = ColourCast(np.array([[1.0, 1.0, 1.0], [1.1, 1.1, 1.1]]), points=10, seconds=0.0)
     assert bright.worst == pytest.approx(0.0, abs=1e-9) and bright.brightness == pytest.approx(np.log(1.1))
@@ -88,9 +88,9 @@ def test_colour_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
     register the mug's views; what the test checks is that the fit reads the views' colour ratios)."""
     from conftest import tiny_config
 
-    from va_plugin.adaptive.consistency import colour_cast
+    from va_plugin.analysis.consistency import colour_cast
     from va_plugin.api import load_run
-    from va_plugin.data.scenes.builder import build_procedural_scene
+    from va_plugin.bench.scenes.builder import build_procedural_scene
     from va_plugin.export.texture import run_views
 
     # after 2 steps the surface is still the start sphere: 8 views, so that neighbours share points of it

@@ -4,10 +4,10 @@ import numpy as np
 import pytest
 from conftest import tiny_config
 
-from va_plugin.adaptive.diagnostics import attention_picture, overlap_scores
+from va_plugin.analysis.diagnostics import attention_picture, overlap_scores
+from va_plugin.bench.scenes.builder import build_procedural_scene
 from va_plugin.cli.export import main as export_main
 from va_plugin.data.images import read_image
-from va_plugin.data.scenes.builder import build_procedural_scene
 
 
 def test_overlap_scores_against_hand_values():
@@ -66,7 +66,7 @@ def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, tiny_
     exactly what two separate renders, own path and novel-view path, give."""
     import torch
 
-    from va_plugin.adaptive.diagnostics import inconsistency_maps
+    from va_plugin.export.inconsistency import inconsistency_maps
     from va_plugin.export.render import render_view
 
     trainer = tiny_config(method, tiny_scene, tmp_path / "run", steps=2, **{
@@ -92,7 +92,7 @@ def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, tiny_
 
 
 def test_failing_diagnostics_warn_and_keep_the_trained_run(tiny_scene, tmp_path, monkeypatch):
-    import va_plugin.adaptive.diagnostics as diagnostics
+    import va_plugin.analysis.diagnostics as diagnostics
     from va_plugin.engine.trainer import list_checkpoints
 
     def broken(*args, **kwargs):

@@ -8,7 +8,8 @@ import torch
 from conftest import tiny_config
 
 from va_plugin.adaptive.field import BRANCHES, FUSION, PRETRAIN, ViewAdaptiveField, ViewAdaptiveFieldConfig
-from va_plugin.adaptive.phases import RESIDUALS_FILE, phase_at
+from va_plugin.adaptive.phases import phase_at
+from va_plugin.analysis.consistency import RESIDUALS_FILE
 from va_plugin.errors import ConfigError
 from va_plugin.rays import RayBundle
 
@@ -181,8 +182,8 @@ def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, 
     says why."""
     import numpy as np
 
-    from va_plugin.adaptive import phases
-    from va_plugin.adaptive.consistency import ColourCast
+    from va_plugin.analysis import consistency as phases
+    from va_plugin.analysis.consistency import ColourCast
 
     def fake_cast(model, cameras, images, masks, resolution):
         return ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]), 100, 0.0,
@@ -307,7 +308,7 @@ def test_fused_samples_per_ray_must_not_be_negative():
 
 
 def test_the_consistency_check_renders_a_fixed_pixel_budget_over_all_views(tiny_scene, tmp_path):
-    from va_plugin.adaptive.phases import view_residuals
+    from va_plugin.analysis.consistency import view_residuals
 
     trainer = _trainer("va-ngp", tiny_scene, tmp_path / "run", steps=1)
     model, dm = trainer.pipeline.model, trainer.pipeline.datamanager

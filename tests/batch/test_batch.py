@@ -27,7 +27,7 @@ COMPARED = ("name", "status", "cd", "iou", "fscore", "psnr", "ssim", "lpips", "s
 @pytest.fixture(scope="module")
 def inputs(tmp_path_factory) -> Path:
     """Two 32-px scenes with ground truth (the mug and the bowl) and a file that is no image."""
-    from va_plugin.data.scenes.builder import build_procedural_scene
+    from va_plugin.bench.scenes.builder import build_procedural_scene
 
     root = tmp_path_factory.mktemp("inputs")
     for name in ("mug", "bowl"):

@@ -15,8 +15,8 @@ from va_plugin.cli import train as train_cli
 from va_plugin.data import rigs
 from va_plugin.data.dataparsers import FORMATS, detect_format, resolve_dataparser
 from va_plugin.data.images import read_image, write_image
-from va_plugin.data.scenes.raycast import MeshRenderer, position_albedo
 from va_plugin.errors import DataError
+from va_plugin.raycast import MeshRenderer, position_albedo
 
 SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
 GENERATED = SHARED_DATA / "generated"
@@ -308,7 +308,7 @@ def test_real_zero123pp_grid_fits_the_v12_rig(name):
 @needs_gso
 def test_gso_meshes_project_onto_the_parsed_syncdreamer_rig(tmp_path):
     """The aligned GSO meshes seen through the SyncDreamer parser's cameras cover the renders' alpha."""
-    from va_plugin.data.scenes import gso
+    from va_plugin.bench.scenes import gso
 
     for name in gso.list_objects(GSO_ROOT):
         renders = gso.load_renders(GSO_ROOT, name, 128)

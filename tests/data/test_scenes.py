@@ -10,17 +10,17 @@ import cv2
 import numpy as np
 import pytest
 
+from va_plugin.bench.scenes import build_scene, ensure_default_scene, gso
+from va_plugin.bench.scenes.builder import SCENE_VERSION, on_white
+from va_plugin.bench.scenes.inconsistency import InconsistencySpec, draw_perturbation
+from va_plugin.bench.scenes.meshfile import load_textured_mesh
+from va_plugin.bench.scenes.rig import benchmark_cameras, syncdreamer_rig
+from va_plugin.bench.scenes.shapes import OBJECTS, object_mesh
+from va_plugin.bench.scenes.sources import ImageSource, load_source
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
-from va_plugin.data.scenes import build_scene, ensure_default_scene, gso
-from va_plugin.data.scenes.builder import SCENE_VERSION, on_white
-from va_plugin.data.scenes.inconsistency import InconsistencySpec, draw_perturbation
-from va_plugin.data.scenes.meshfile import load_textured_mesh
-from va_plugin.data.scenes.raycast import MeshRenderer
-from va_plugin.data.scenes.rig import benchmark_cameras, syncdreamer_rig
-from va_plugin.data.scenes.shapes import OBJECTS, object_mesh
-from va_plugin.data.scenes.sources import ImageSource, load_source
 from va_plugin.errors import ConfigError, DataError
 from va_plugin.eval import psnr
+from va_plugin.raycast import MeshRenderer
 
 REPO = Path(__file__).resolve().parents[2]
 SHARED_DATA = REPO.parent / "shared" / "data"

@@ -161,8 +161,8 @@ def test_an_object_cut_off_by_the_frame_is_warned_about(tiny_scene):
 
 def test_gso_cream_is_the_dev_object_the_frame_cuts_off():
     """On the SyncDreamer rig, cream (a box) is cut off in all 4 input views; alarm is not."""
+    from va_plugin.bench.scenes import gso
     from va_plugin.data.bounds import border_foreground
-    from va_plugin.data.scenes import gso
     root = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "gso"
     if not (root / "alignment.json").is_file():
         pytest.skip(f"GSO data absent: {root}")

@@ -14,7 +14,7 @@ from va_plugin.export.render import render_view
 @pytest.fixture(scope="module")
 def trained(tmp_path_factory):
     """A neus pipeline after 2 steps on a 32-px mug (LPIPS-Alex needs at least 31 px)."""
-    from va_plugin.data.scenes.builder import build_procedural_scene
+    from va_plugin.bench.scenes.builder import build_procedural_scene
 
     scene = build_procedural_scene(tmp_path_factory.mktemp("scene32"), "mug", n_views=4, resolution=32)
     trainer = tiny_config("neus", scene, tmp_path_factory.mktemp("run"), steps=2).setup()

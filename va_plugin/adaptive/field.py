@@ -73,6 +73,11 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     consistent_colour_cast: float = 0.012
     """Threshold of the colour-cast test: the largest chromatic shift between a view and view 0 on the
     shared surface, in colour units (``ColourCast.worst_shift``); 0 turns the test off."""
+    consistency_test: str = "va_plugin.analysis.consistency:decide_skip"
+    """With ``skip_consistent_scenes``: the test that decides, as ``module:function`` taking the field, the
+    callback's attributes and the step, and returning True to skip the adaptive phases."""
+    diagnostics_writer: str = "va_plugin.analysis.diagnostics:write_diagnostics"
+    """What writes the pictures after the last step, as ``module:function`` (pipeline, run folder, scale)."""
     diagnostics_scale: float = 0.5
     """At the end of training, write the attention heat map and the per-view inconsistency maps to the
     run folder, rendered at this fraction of the input resolution (0: don't)."""

@@ -78,7 +78,7 @@ def object_option_names() -> list[str]:
 
 def check_options(args: argparse.Namespace) -> None:
     """Refuse a bad command before any job starts (one line each)."""
-    build_config(args.method, preset=args.preset, overrides=args.overrides, resolve_data=False)
+    build_config(args.method, preset=args.preset, overrides=args.overrides)
     if args.threads < 1 or (args.workers is not None and args.workers < 1):
         raise ConfigError("--workers and --threads must be at least 1")
     if args.steps is not None and args.steps < 1:

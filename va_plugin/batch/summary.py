@@ -15,6 +15,7 @@ import numpy as np
 from va_plugin.batch.job import METRICS
 from va_plugin.batch.manifest import write_atomic
 from va_plugin.bench.report import markdown_table
+from va_plugin.data.images import read_image, write_image
 
 COLUMNS = ("name", "status", "seconds", *METRICS, "steps", "train_seconds", "error", "input", "run_dir")
 MEAN_COLUMNS = ("seconds", *METRICS, "steps", "train_seconds")
@@ -84,7 +85,6 @@ def contact_sheet(out: Path, records: Sequence[dict[str, Any]], columns: int = 4
     mesh), ``columns`` objects a row; None when no object has a thumbnail."""
     import cv2
 
-    from va_plugin.data.images import read_image, write_image
 
     thumbs = {}
     for record in records:

@@ -18,11 +18,11 @@ from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+from va_plugin.bench.catalog import ensure_scene, expand_scene_names
 from va_plugin.bench.parallel import RowTask, run_in_processes
 from va_plugin.bench.presets import BACKBONES, PRESETS, BenchPreset, get_preset
 from va_plugin.bench.report import fmt, machine_info
 from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, run_steps, scene_of
-from va_plugin.bench.scenes import ensure_scene, expand_scene_names
 from va_plugin.bench.store import ResultStore
 from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
 from va_plugin.errors import ConfigError

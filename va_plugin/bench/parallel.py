@@ -29,6 +29,7 @@ import torch
 
 from va_plugin.bench.presets import EvalSettings
 from va_plugin.bench.rows import RowSpec, run_row
+from va_plugin.errors import one_line_warning
 
 STOP_SECONDS = 120.0
 """How long interrupted rows get to save their checkpoints before their workers are terminated."""
@@ -66,9 +67,7 @@ def _serve(conn, stopping, threads: int) -> None:
     ("done", result), ("interrupted",) or ("error", exception, traceback text)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the main process while starting
-    from va_plugin.cli.common import _one_line_warning
-
-    warnings.showwarning = _one_line_warning
+    warnings.showwarning = one_line_warning
     torch.set_num_threads(threads)
     while True:
         try:

@@ -21,11 +21,12 @@ from typing import Any
 import torch
 
 from va_plugin.api import build_config
+from va_plugin.bench.catalog import SceneSpec, input_error
 from va_plugin.bench.presets import BACKBONE_TITLES, BACKBONES, BenchPreset, EvalSettings
-from va_plugin.bench.scenes import SceneSpec, input_error
 from va_plugin.config import apply_override, config_digest
 from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints, train_run
 from va_plugin.errors import VAError
+from va_plugin.eval.evaluate import evaluate_run, image_metrics
 from va_plugin.registry import get_method
 
 ROW_FILE = "bench_row.json"
@@ -71,7 +72,7 @@ def row_config(row: RowSpec, preset: BenchPreset, scene_dir: Path, run_dir: Path
     """The trainer config of a row (see the module docstring)."""
     steps = row.steps if row.steps is not None else preset.steps.get(row.backbone)
     config = build_config(row.method, preset=row.method_preset or preset.method_preset, steps=steps, seed=seed,
-                          device=device, out=run_dir, progress=False, resolve_data=False)
+                          device=device, out=run_dir, progress=False)
     config.pipeline.datamanager.dataparser.data = Path(scene_dir)  # benchmark scenes: the method's own parser
     checkpoint_along(config, preset.curve_points)
     extra = ADAPTIVE_OVERRIDES if row.adaptive else ()
@@ -100,7 +101,6 @@ def fingerprint(config, evaluation: EvalSettings, out: Path) -> str:
 def evaluate_state(pipeline, state: dict[str, Any], scene_dir: Path, evaluation: EvalSettings) -> dict[str, Any]:
     """``evaluate_run`` of a loaded state; when the run has no mesh to score (no surface, or one that
     encloses nothing) the image metrics are kept and the geometry metrics are NaN, with the reason."""
-    from va_plugin.eval.evaluate import evaluate_run, image_metrics
 
     with warnings.catch_warnings():
         warnings.filterwarnings("ignore", message=".*not watertight.*")

@@ -10,7 +10,7 @@ import warnings
 from collections.abc import Callable
 from pathlib import Path
 
-from va_plugin.errors import VAError
+from va_plugin.errors import VAError, one_line_warning
 from va_plugin.utils.interrupts import terminate_as_interrupt
 
 EXIT_USER_ERROR = 2
@@ -24,7 +24,7 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
         shown = warnings.showwarning
-        warnings.showwarning = _one_line_warning
+        warnings.showwarning = one_line_warning
         try:
             with terminate_as_interrupt():
                 return main(*args, **kwargs)
@@ -38,11 +38,6 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
             warnings.showwarning = shown
 
     return wrapper
-
-
-def _one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
-    """Warnings on the command line as ``warning: <message>``, without the source line."""
-    print(f"warning: {message}", file=sys.stderr if file is None else file)
 
 
 def check_output_dir(path: Path, flag: str) -> None:

@@ -16,12 +16,12 @@ from va_plugin.api import (
     EVAL_FILE,
     TrainingInterrupted,
     build_config,
-    default_scene,
     evaluate,
     export_mesh,
     load_run,
     train,
 )
+from va_plugin.bench.scenes import default_scene
 from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
 from va_plugin.data.images import read_image, write_image
 from va_plugin.export.render import render_turntable
@@ -55,9 +55,8 @@ def demo_config(args: argparse.Namespace, resolve_data: bool = True):
     """The config the demo trains: the method's on the default scene, with the demo's step budget unless a
     preset or ``--steps`` is asked for."""
     steps = args.steps if args.steps is not None or args.preset else DEMO_STEPS.get(args.method)
-    return build_config(args.method, None, preset=args.preset, steps=steps, device=args.device, out=args.output_dir,
-                        progress=not args.no_progress, default_scene_resolution=args.resolution,
-                        resolve_data=resolve_data)
+    return build_config(args.method, default_scene(args.resolution) if resolve_data else None, preset=args.preset,
+                        steps=steps, device=args.device, out=args.output_dir, progress=not args.no_progress)
 
 
 @friendly_errors

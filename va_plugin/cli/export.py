@@ -6,7 +6,7 @@ import argparse
 import sys
 from pathlib import Path
 
-from va_plugin.adaptive.diagnostics import write_diagnostics
+from va_plugin.analysis.diagnostics import write_diagnostics
 from va_plugin.api import export_mesh, load_run, render
 from va_plugin.cli.common import friendly_errors
 from va_plugin.errors import ConfigError

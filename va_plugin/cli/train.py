@@ -7,6 +7,7 @@ import sys
 from pathlib import Path
 
 from va_plugin.api import VIEW_COUNTS, TrainingInterrupted, build_config, export_mesh, train
+from va_plugin.bench.scenes import default_scene
 from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
 from va_plugin.config import format_options
 from va_plugin.data.dataparsers import FORMATS
@@ -85,11 +86,14 @@ def object_options(args: argparse.Namespace) -> dict:
 
 
 def make_config(args: argparse.Namespace, resolve_data: bool = True):
-    """The trainer config of a parsed ``va-train`` command line (``resolve_data=False``: the method's own
-    dataparser config, without reading the input or building the default scene)."""
-    return build_config(args.method, args.data, out=args.output_dir, masks=args.masks,
-                        progress=not args.no_progress, resolve_data=resolve_data,
-                        default_scene_resolution=args.default_scene_resolution, **object_options(args))
+    """The trainer config of a parsed ``va-train`` command line: without ``--data``, on the embedded default
+    scene (``resolve_data=False``: the method's own dataparser config, without reading the input or
+    building the default scene)."""
+    data = args.data
+    if data is None and resolve_data:
+        data = default_scene(args.default_scene_resolution)
+    return build_config(args.method, data if resolve_data else None, out=args.output_dir, masks=args.masks,
+                        progress=not args.no_progress, **object_options(args))
 
 
 def say(line: str) -> None:

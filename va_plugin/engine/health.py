@@ -24,7 +24,8 @@ from typing import Any
 
 import torch
 
-from va_plugin.errors import VAError
+from va_plugin.errors import ConfigError, VAError
+from va_plugin.rays import RayBundle
 from va_plugin.utils.stages import timed
 
 OK, SKIP, RESTORE = "ok", "skip", "restore"
@@ -70,7 +71,6 @@ class HealthConfig:
     """Runs shorter than this many steps skip that check."""
 
     def validate(self) -> None:
-        from va_plugin.errors import ConfigError
 
         if not (0.0 < self.lr_backoff < 1.0):
             raise ConfigError(f"health.lr_backoff must be in (0, 1), got {self.lr_backoff}")
@@ -278,7 +278,6 @@ class TrainingGuard:
 def foreground_opacity(pipeline, max_rays: int = 1024) -> float | None:
     """Mean opacity the model renders (canonical path) on up to ``max_rays`` of the training views'
     foreground pixels, evenly spread over them; None when the input has no masks."""
-    from va_plugin.rays import RayBundle
 
     datamanager = pipeline.datamanager
     foreground = datamanager._foreground_pixels()

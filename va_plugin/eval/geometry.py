@@ -15,6 +15,8 @@ import numpy as np
 import trimesh
 from scipy.spatial import cKDTree
 
+from va_plugin.utils.interrupts import interrupt_deferred
+
 Bound = float | Sequence[Sequence[float]] | np.ndarray
 
 # Rays per query point for the inside test; odd, so the majority vote never ties.
@@ -127,7 +129,6 @@ def voxel_centres(box: np.ndarray, resolution: int) -> np.ndarray:
 def occupancy(mesh: trimesh.Trimesh, points: np.ndarray) -> np.ndarray:
     """Inside test of ``[..., 3]`` points against a mesh, bool ``[...]``: open3d's ray-parity occupancy
     with a majority vote over ``OCCUPANCY_RAYS`` rays. Exact for watertight meshes."""
-    from va_plugin.utils.interrupts import interrupt_deferred
 
     with interrupt_deferred():  # heavy import, only needed here; a Ctrl-C during it fails the import
         import open3d as o3d

@@ -9,8 +9,12 @@ import numpy as np
 from tqdm import tqdm
 
 from va_plugin.cameras import Cameras
-from va_plugin.data.scenes.raycast import MeshRenderer, SurfaceHits
+from va_plugin.data.images import write_image
+from va_plugin.errors import ConfigError
+from va_plugin.eval.evaluate import image_metrics
+from va_plugin.export.render import turntable_cameras, write_video
 from va_plugin.export.views import bilinear
+from va_plugin.raycast import MeshRenderer, SurfaceHits
 
 
 class UnlitMeshRenderer(MeshRenderer):
@@ -60,7 +64,6 @@ MAX_SUPERSAMPLE = 8
 
 def check_supersample(value: int, name: str = "supersample") -> int:
     """``value`` when it is a whole number in [1, MAX_SUPERSAMPLE], else ConfigError naming ``name``."""
-    from va_plugin.errors import ConfigError
 
     if isinstance(value, bool) or not isinstance(value, (int, np.integer)) or not 1 <= value <= MAX_SUPERSAMPLE:
         raise ConfigError(f"{name} must be a whole number of rays per pixel side in [1, {MAX_SUPERSAMPLE}], "
@@ -72,7 +75,6 @@ def textured_mesh_metrics(pipeline, textured, image_scale: float = 1.0, max_view
                           progress: bool = True, render_dir=None, supersample: int = SCORE_SUPERSAMPLE):
     """PSNR, SSIM and LPIPS of a textured mesh ray cast at the run's held-out views (``supersample^2`` rays
     a pixel), scored like the field's novel views (:func:`va_plugin.eval.evaluate.image_metrics`)."""
-    from va_plugin.eval.evaluate import image_metrics
 
     supersample = check_supersample(supersample)
     renderer = textured_renderer(textured)
@@ -86,8 +88,6 @@ def textured_turntable(textured, out_dir: Path, n_frames: int = 24, resolution: 
                        progress: bool = True) -> Path:
     """A turntable of a baked :class:`~va_plugin.export.texture.TexturedMesh` (ray cast, unlit, on white):
     ``turntable.mp4`` and ``turntable.png`` (four frames side by side) in ``out_dir``; the video's path."""
-    from va_plugin.data.images import write_image
-    from va_plugin.export.render import turntable_cameras, write_video
 
     out_dir = Path(out_dir)
     out_dir.mkdir(parents=True, exist_ok=True)

@@ -11,8 +11,8 @@ import cv2
 import numpy as np
 import trimesh
 
-from va_plugin.data.scenes.raycast import o3d
 from va_plugin.errors import VAError
+from va_plugin.raycast import o3d
 
 PADDING_TEXELS = 16
 """Texels by which :func:`dilate` grows the charts of a baked image."""

@@ -13,6 +13,8 @@ from tqdm import tqdm
 
 from va_plugin.cameras import Cameras
 from va_plugin.data.images import write_image
+from va_plugin.data.rigs import orbit_cameras
+from va_plugin.raycast import MeshRenderer
 from va_plugin.rays import RayBundle
 
 if TYPE_CHECKING:
@@ -36,7 +38,6 @@ def render_view(model, cameras: Cameras, index: int, as_view: int = -1, keys=Non
 
 def turntable_cameras(n_frames: int, resolution: int, elevation_deg: float = 30.0) -> Cameras:
     """Cameras circling the object on the SyncDreamer rig's orbit."""
-    from va_plugin.data.scenes.rig import orbit_cameras
 
     return orbit_cameras([360.0 * k / n_frames for k in range(n_frames)], elevation_deg, resolution=resolution)
 
@@ -104,7 +105,6 @@ def mesh_views(meshes: list[trimesh.Trimesh], n_views: int = 4, resolution: int 
                elevation_deg: float = 30.0, background: float = 1.0) -> np.ndarray:
     """One row per mesh of ``n_views`` grey shaded renders on the SyncDreamer orbit: the meshes' geometry
     side by side (vertex colours are ignored)."""
-    from va_plugin.data.scenes.raycast import MeshRenderer
 
     cameras = turntable_cameras(n_views, resolution, elevation_deg)
     grey = lambda hits: np.full((hits.points.shape[0], 3), 0.8, np.float32)

@@ -16,12 +16,13 @@ import numpy as np
 import torch
 import trimesh
 
-from va_plugin.data.scenes.raycast import smooth_vertex_normals
 from va_plugin.errors import VAError
 from va_plugin.export.atlas import MAX_TEXTURE_FACES, dilate, rasterize_uv, simplify_for_texture, unwrap
 from va_plugin.export.fusion import FUSIONS, apply_harmonisation, fuse, harmonise
+from va_plugin.export.inconsistency import inconsistency_maps
 from va_plugin.export.views import Views, view_samples
 from va_plugin.export.writing import bake_picture, check_texture_output, write_bake_record, write_textured_mesh
+from va_plugin.raycast import smooth_vertex_normals
 from va_plugin.utils.memory import check_texture_memory
 
 MIN_TEXTURE_SIZE = 16
@@ -154,7 +155,6 @@ def run_views(pipeline, inconsistency: bool = False, progress: bool = False) -> 
     if inconsistency:
         if not hasattr(pipeline.model.field, "branches_active") or not pipeline.model.field.branches_active():
             raise VAError("--use-inconsistency needs a view-adaptive run (va-neus, va-ngp) whose branches trained")
-        from va_plugin.adaptive.diagnostics import inconsistency_maps
 
         maps = np.stack([v["map"] for v in inconsistency_maps(pipeline, scale=0.5, progress=progress)])
     return Views(dm.cameras.to(torch.device("cpu")), dm.images.cpu().numpy().astype(np.float32), masks, maps)

@@ -15,7 +15,7 @@ import torch
 from tqdm import tqdm
 
 from va_plugin.cameras import Cameras
-from va_plugin.data.scenes.raycast import o3d
+from va_plugin.raycast import o3d
 
 EDGE_PIXELS = 3.0
 """A view's weight rises from 0 at EDGE_MARGIN pixels inside its silhouette to 1 this many pixels further."""

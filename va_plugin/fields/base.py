@@ -12,6 +12,8 @@ import torch
 from torch import nn
 
 from va_plugin.config import InstantiateConfig
+from va_plugin.errors import ConfigError
+from va_plugin.fields.encodings.hash_grid import HashGridEncoding
 
 
 @dataclass
@@ -54,8 +56,6 @@ class HashGridFieldConfig(FieldConfig):
 
     def make_encoding(self):
         """The field's :class:`HashGridEncoding` (a one-line error for a bound that is not positive)."""
-        from va_plugin.errors import ConfigError
-        from va_plugin.fields.encodings.hash_grid import HashGridEncoding
 
         if self.bound <= 0:
             raise ConfigError(f"field.bound must be positive, got {self.bound}")

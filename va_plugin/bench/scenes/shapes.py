@@ -15,7 +15,7 @@ from functools import lru_cache
 import numpy as np
 import trimesh
 
-from va_plugin.data.scenes.sdf import (
+from va_plugin.bench.scenes.sdf import (
     SDF,
     intersect,
     length,

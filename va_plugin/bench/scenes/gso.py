@@ -15,12 +15,12 @@ import cv2
 import numpy as np
 import trimesh
 
+from va_plugin.bench.scenes.meshfile import normalise_vertices
+from va_plugin.bench.scenes.rig import RIG_VIEWS
 from va_plugin.cameras import Cameras
 from va_plugin.data.images import read_image
-from va_plugin.data.scenes.meshfile import normalise_vertices
-from va_plugin.data.scenes.raycast import MeshRenderer
-from va_plugin.data.scenes.rig import RIG_VIEWS
 from va_plugin.errors import DataError
+from va_plugin.raycast import MeshRenderer
 
 GSO_RESOLUTION = 256
 

@@ -17,9 +17,8 @@ import torch
 import trimesh
 from scipy import ndimage
 
-from va_plugin.cameras import Cameras, look_at
-from va_plugin.data.scenes import gso, meshfile, shapes
-from va_plugin.data.scenes.inconsistency import (
+from va_plugin.bench.scenes import gso, meshfile, shapes
+from va_plugin.bench.scenes.inconsistency import (
     ViewPerturbation,
     apply_appearance,
     compose_maps,
@@ -27,9 +26,13 @@ from va_plugin.data.scenes.inconsistency import (
     perturbed_vertices,
     remap_rgba,
 )
-from va_plugin.data.scenes.raycast import MeshRenderer, position_albedo
-from va_plugin.data.scenes.rig import RIG_DISTANCE
+from va_plugin.bench.scenes.rig import RIG_DISTANCE
+from va_plugin.cameras import Cameras, look_at
 from va_plugin.errors import ConfigError
+from va_plugin.eval.mesh_render import textured_renderer
+from va_plugin.export.texture import bake_texture
+from va_plugin.export.views import Views
+from va_plugin.raycast import MeshRenderer, position_albedo
 
 SOURCE_KINDS = ("procedural", "mesh", "gso")
 
@@ -127,9 +130,6 @@ class ImageSource(SceneSource):
         the views that see a texel): an estimate of the object's look from off the rig, faithful where the
         rig sees the surface (the renders carry the only appearance there is)."""
         if self._baked is None:
-            from va_plugin.eval.mesh_render import textured_renderer
-            from va_plugin.export.texture import bake_texture
-            from va_plugin.export.views import Views
 
             alpha = self.images[..., 3:]
             views = Views(rig, (self.images[..., :3] * alpha + (1.0 - alpha)).astype(np.float32))

@@ -1,21 +1,38 @@
-"""Do the input views agree?
+"""Do the input views agree? The test that decides whether a view-adaptive run skips its adaptive phases.
 
 :func:`silhouette_support`: with consistent views, every foreground pixel's ray holds a point that all
 other masks contain; per view, the share of foreground pixels whose ray holds none ("unsupported").
 It needs no training. :func:`colour_cast`: per-view colour gains that make the views agree on the
-shared surface.
+shared surface. :func:`decide_skip` runs both on a run at the end of its pre-training, records them with
+the per-view residuals of the shared field (:func:`view_residuals`, which do not vote) in the run folder
+and says whether to skip the adaptive phases.
 """
 
 from __future__ import annotations
 
+import json
+import math
 from dataclasses import dataclass
+from pathlib import Path
+from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 import torch
 
 from va_plugin.cameras import Cameras
-from va_plugin.rays import near_far_from_sphere
+from va_plugin.engine.callbacks import TrainingCallbackAttributes
+from va_plugin.errors import VAError
+from va_plugin.export.fusion import harmonise
+from va_plugin.export.mesh import extract_mesh
+from va_plugin.export.texture import run_views
+from va_plugin.export.views import Views, view_samples
+from va_plugin.model_components.losses import psnr_from_mse
+from va_plugin.raycast import smooth_vertex_normals
+from va_plugin.rays import RayBundle, near_far_from_sphere
+
+if TYPE_CHECKING:
+    from va_plugin.adaptive.field import ViewAdaptiveField
 
 
 @dataclass
@@ -147,10 +164,6 @@ def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: np.ndarray |
     Raises VAError when the model has no surface."""
     import time
 
-    from va_plugin.data.scenes.raycast import smooth_vertex_normals
-    from va_plugin.export.fusion import harmonise
-    from va_plugin.export.mesh import extract_mesh
-    from va_plugin.export.views import Views, view_samples
 
     started = time.perf_counter()
     mesh = extract_mesh(model, resolution=resolution, with_color=False)
@@ -165,3 +178,110 @@ def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: np.ndarray |
     w = np.where(seen & shared[:, None], weights, 0.0)
     levels = np.einsum("mn,mnc->nc", w, colours) / np.maximum(w.sum(0), 1e-12)[:, None]
     return ColourCast(gains, int(shared.sum()), time.perf_counter() - started, levels.astype(np.float32))
+
+
+RESIDUALS_FILE = "view_residuals.json"
+COLOUR_CAST_GRID = 96
+"""Marching-cubes grid of the surface the colour-cast test fits on."""
+
+
+@torch.no_grad()
+def view_residuals(pipeline, max_pixels: int = 4096, total_pixels: int = 16384,
+                   foreground_pixels: int = 4096) -> list[dict[str, float]]:
+    """How well the shared (canonical) field explains each training input: per view, the PSNR over the
+    rendered pixels and, with masks, over their foreground.
+
+    With masks, ``foreground_pixels`` in all are spread evenly over the views' foregrounds; without
+    (or with ``foreground_pixels=0`` or an empty mask), up to ``max_pixels`` per view and
+    ``total_pixels`` in all on an even stride. No random draw: a resumed run decides the same.
+    """
+    dm = pipeline.datamanager
+    height, width = dm.images.shape[1:3]
+    n_views = max(dm.num_train_views, 1)
+    per_view = max(1, min(max_pixels, total_pixels // n_views))
+    stride = max(1, math.ceil(math.sqrt(height * width / per_view)))
+    grid_rows, grid_cols = torch.meshgrid(torch.arange(stride // 2, height, stride, device=dm.device),
+                                          torch.arange(stride // 2, width, stride, device=dm.device), indexing="ij")
+    grid_rows, grid_cols = grid_rows.reshape(-1), grid_cols.reshape(-1)
+    per_view_foreground = max(1, foreground_pixels // n_views)
+    results = []
+    for view in range(dm.num_train_views):
+        rows, cols = grid_rows, grid_cols
+        if dm.masks is not None and foreground_pixels > 0:
+            inside = (dm.masks[view, ..., 0].reshape(-1) > 0.5).nonzero().squeeze(-1)
+            if inside.numel() > 0:
+                if inside.numel() > per_view_foreground:  # evenly spaced over the foreground, in scan order
+                    pick = torch.linspace(0, inside.numel() - 1, per_view_foreground, device=inside.device)
+                    inside = inside[pick.round().long()]
+                rows, cols = inside // width, inside % width
+        views = torch.full_like(rows, view)
+        origins, directions = dm.cameras.generate_rays(views, rows, cols)
+        rays = RayBundle(origins, directions, torch.full_like(views, -1))
+        rgb = pipeline.model.render_rays(rays, keys=("rgb",))["rgb"]
+        target = dm.images[view, rows, cols]
+        err = ((rgb - target) ** 2).mean(-1)
+        entry = {"view": view, "psnr": float(psnr_from_mse(err.mean())), "pixels": int(rows.numel())}
+        if dm.masks is not None:
+            fg = dm.masks[view, rows, cols, 0] > 0.5
+            if bool(fg.any()):
+                entry["psnr_foreground"] = float(psnr_from_mse(err[fg].mean()))
+        results.append(entry)
+    return results
+
+
+def residual_spread_db(residuals: list[dict[str, float]]) -> float:
+    """How far the worst-explained view falls below the best one, in dB: the spread of the per-view
+    foreground PSNRs of :func:`view_residuals` (of the whole-image PSNRs when a view has no foreground)."""
+    key = "psnr_foreground" if all("psnr_foreground" in r for r in residuals) else "psnr"
+    values = [r[key] for r in residuals]
+    return max(values) - min(values)
+
+
+def decide_skip(field: ViewAdaptiveField, attributes: TrainingCallbackAttributes, step: int) -> bool:
+    """Measure the silhouette support and the colour cast, record them with the per-view residuals (which
+    do not vote), and say whether to skip the adaptive phases (when the inputs agree)."""
+    residuals = view_residuals(attributes.pipeline)
+    support = input_silhouette_support(attributes.pipeline.datamanager)
+    cast = input_colour_cast(attributes.pipeline, field.config.consistent_colour_cast)
+    colour_ok = cast is None or cast.worst_shift <= field.config.consistent_colour_cast
+    consistent = (support is None or support.consistent) and colour_ok
+    record = {"step": step, "consistent": consistent, "views": residuals,
+              "silhouette_support": support.as_dict() if support is not None else None,
+              "colour_cast": None if cast is None else {**cast.as_dict(), "consistent": colour_ok,
+                                                        "threshold": field.config.consistent_colour_cast}}
+    run_dir = Path(attributes.run_dir)
+    run_dir.mkdir(parents=True, exist_ok=True)
+    (run_dir / RESIDUALS_FILE).write_text(json.dumps(record, indent=2))
+    spread = residual_spread_db(residuals)
+    details = f", silhouettes {100 * support.worst:.2f}% unsupported" if support is not None else ""
+    details += f", colour cast {cast.worst_shift:.3f}" if cast is not None else ""
+    if consistent:
+        field.skipped.fill_(True)
+        attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB{details}): "
+                                  "adaptive phases skipped; force them with skip_consistent_scenes=false",
+                            skipped_adaptive=True)
+    else:
+        attributes.announce(step, f"inputs disagree (per-view PSNR spread {spread:.2f} dB{details}): "
+                                  "adaptive phases on", residual_spread_db=spread)
+    return consistent
+
+
+def input_colour_cast(pipeline, threshold: float):
+    """:func:`colour_cast` of the shared field on the training views; None when the test is off, with
+    fewer than two views, or when no surface (point seen by two views) exists yet."""
+
+    if threshold <= 0 or pipeline.datamanager.num_train_views < 2:
+        return None
+    views = run_views(pipeline)
+    try:
+        cast = colour_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=COLOUR_CAST_GRID)
+    except VAError:
+        return None
+    return cast if cast.points > 0 else None
+
+
+def input_silhouette_support(datamanager):
+    """:func:`silhouette_support` of the training views' masks (None without masks)."""
+    if datamanager.masks is None:
+        return None
+    return silhouette_support(datamanager.cameras, datamanager.masks[..., 0] > 0.5, datamanager.scene_radius)

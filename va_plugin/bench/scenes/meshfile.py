@@ -13,8 +13,8 @@ import numpy as np
 import trimesh
 
 from va_plugin.data.images import read_image
-from va_plugin.data.scenes.raycast import Albedo, UVTexture
 from va_plugin.errors import ConfigError, DataError
+from va_plugin.raycast import Albedo, UVTexture
 
 UP_AXES = ("y", "z")
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg")

@@ -16,6 +16,7 @@ The same arguments always give the same bytes.
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Sequence
 from dataclasses import asdict
 from pathlib import Path
@@ -23,10 +24,8 @@ from typing import Any
 
 import numpy as np
 
-from va_plugin.data.dataparsers.transforms import frames_to_json
-from va_plugin.data.images import write_image
-from va_plugin.data.scenes import gso
-from va_plugin.data.scenes.inconsistency import (
+from va_plugin.bench.scenes import gso
+from va_plugin.bench.scenes.inconsistency import (
     AMPLITUDES,
     KINDS,
     LEVEL_SCALE,
@@ -34,10 +33,13 @@ from va_plugin.data.scenes.inconsistency import (
     draw_perturbation,
     mean_of,
 )
-from va_plugin.data.scenes.rig import RIG_VIEWS, benchmark_cameras, input_view_ids, view_angles
-from va_plugin.data.scenes.sources import ImageSource, SceneSource, load_source
+from va_plugin.bench.scenes.rig import RIG_VIEWS, benchmark_cameras, input_view_ids, view_angles
+from va_plugin.bench.scenes.sources import ImageSource, SceneSource, load_source
+from va_plugin.data.dataparsers.transforms import frames_to_json
+from va_plugin.data.images import write_image
 from va_plugin.errors import ConfigError
-from va_plugin.eval import psnr
+from va_plugin.eval import lpips, psnr
+from va_plugin.eval.lpips import MIN_SIDE, LPIPSWeightsMissing, weight_paths
 from va_plugin.utils.threads import single_thread
 
 SCENE_VERSION = 2  # 1: consistent mug only; 2: sources, inconsistency, measured errors
@@ -58,7 +60,6 @@ def on_white(rgba: np.ndarray) -> np.ndarray:
 
 def lpips_unavailable(resolution: int) -> str | None:
     """Why LPIPS cannot be measured here, or None when it can."""
-    from va_plugin.eval.lpips import MIN_SIDE, LPIPSWeightsMissing, weight_paths
 
     if resolution < MIN_SIDE:
         return f"images smaller than LPIPS-Alex's {MIN_SIDE} px"
@@ -74,7 +75,6 @@ def measure_error(inconsistent: np.ndarray, clean: np.ndarray, with_lpips: bool)
     a, b = on_white(quantise(inconsistent)), on_white(quantise(clean))
     out: dict[str, float | None] = {"psnr": round(psnr(a, b), 3), "lpips": None}
     if with_lpips:
-        from va_plugin.eval import lpips
 
         out["lpips"] = round(lpips(a, b, device="cpu"), 4)
     return out
@@ -213,6 +213,16 @@ def build_procedural_scene(out_dir: Path, name: str = "mug", n_views: int = 4, r
     return build_scene(out_dir, f"procedural:{name}", n_views=n_views, level=level, kinds=kinds, seed=seed,
                        resolution=resolution, mesh_resolution=mesh_resolution, test_views=test_views,
                        perturb_first_view=perturb_first_view)
+
+
+def cache_dir() -> Path:
+    """Where generated default data lives (``$VA_PLUGIN_CACHE`` or ``~/.cache/va-plugin``)."""
+    return Path(os.environ.get("VA_PLUGIN_CACHE", Path.home() / ".cache" / "va-plugin"))
+
+
+def default_scene(resolution: int = 256) -> Path:
+    """The embedded default scene of ``va-train`` without ``--data`` and of ``va-demo``, in the cache."""
+    return ensure_default_scene(cache_dir() / f"default-scene-{resolution}", resolution=resolution)
 
 
 def ensure_default_scene(cache_dir: Path, resolution: int = 256) -> Path:

@@ -13,11 +13,9 @@ from pathlib import Path
 
 import cv2
 import numpy as np
-import torch
-from tqdm import tqdm
 
 from va_plugin.data.images import read_image, write_image
-from va_plugin.export.render import render_view
+from va_plugin.export.inconsistency import inconsistency_maps
 
 MIN_FULL_SCALE = 1e-3
 """Smallest full scale of the inconsistency picture's colour map (0 .. the maps' 99.5th percentile)."""
@@ -64,31 +62,6 @@ def write_attention(field, run_dir: Path) -> Path | None:
     cell = 64 if matrix.shape[0] <= 8 else 40
     write_image(run_dir / "attention.png", attention_picture(matrix, cell))
     return run_dir / "attention.png"
-
-
-@torch.no_grad()
-def inconsistency_maps(pipeline, scale: float = 0.5, progress: bool = False) -> list[dict[str, np.ndarray]]:
-    """Per training view: its (resized) input, its branch render, its canonical render and the map
-    ``|branch - canonical|`` (mean over RGB), all at ``scale`` of the input resolution."""
-    dm = pipeline.datamanager
-    model = pipeline.model
-    field = model.field
-    cameras = dm.cameras.scaled(scale) if scale != 1.0 else dm.cameras
-    was_training = model.training
-    model.eval()
-    out = []
-    try:
-        field.also_canonical = True  # one pass per view renders both images
-        for view in tqdm(range(dm.num_train_views), desc="inconsistency maps", disable=not progress):
-            own, canonical = render_view(model, cameras, view, as_view=view, keys=("rgb", "rgb_canonical"))
-            target = cv2.resize(dm.images[view].cpu().numpy(), (cameras.width, cameras.height),
-                                interpolation=cv2.INTER_AREA)
-            out.append({"input": target, "own": own, "canonical": canonical,
-                        "map": np.abs(own - canonical).mean(-1)})
-    finally:
-        model.train(was_training)
-        field.also_canonical = False
-    return out
 
 
 def injected_error_maps(scene_dir: Path, size: tuple) -> list[np.ndarray] | None:

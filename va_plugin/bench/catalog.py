@@ -15,7 +15,8 @@ from collections.abc import Iterable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 
-from va_plugin.data.scenes.inconsistency import KINDS
+from va_plugin.bench.scenes import build_scene, gso, list_objects
+from va_plugin.bench.scenes.inconsistency import KINDS
 from va_plugin.errors import ConfigError, DataError
 
 SCENE_FILE = "scene.json"
@@ -61,7 +62,6 @@ class SceneSpec:
 def expand_scene_names(names: Iterable[str], data_root: Path | None) -> list[str]:
     """Scene names -> builder sources (``procedural:NAME``, ``gso:NAME``, ``mesh:PATH``), groups expanded,
     duplicates dropped. The ``gso`` group is empty (with a note on stdout) when ``data_root`` holds none."""
-    from va_plugin.data.scenes import gso, list_objects
 
     procedural = [name for name, _ in list_objects()]
     sources: list[str] = []
@@ -95,7 +95,6 @@ def expand_scene_names(names: Iterable[str], data_root: Path | None) -> list[str
 
 def ensure_scene(spec: SceneSpec, cache: Path, data_root: Path | None) -> Path:
     """The scene's folder in ``cache``, built first when it is not there yet."""
-    from va_plugin.data.scenes import build_scene
 
     out = Path(cache) / spec.folder_name
     if (out / SCENE_FILE).is_file():
