@@ -32,7 +32,7 @@ from typing import Any
 import torch
 import trimesh
 
-from va_plugin.config import apply_override
+from va_plugin.config import apply_override, validate_config
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
@@ -165,6 +165,7 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
     config.progress = progress
     for assignment in _override_list(overrides):
         apply_override(config, assignment)
+    validate_config(config)
     return config
 
 

@@ -167,6 +167,28 @@ def check_range(name: str, value: Any, path: str) -> None:
                           f"got {value}")
 
 
+def validate_config(config: Any, prefix: str = "") -> None:
+    """Every check of a config tree in one pass, whichever way the config was built: the range rules of
+    :func:`check_range` on each numeric field (by its ``--set`` key), then each config's own
+    ``validate(prefix)`` for what spans its fields. Raises ConfigError with the key that is wrong."""
+    if not is_dataclass(config) or isinstance(config, type):
+        return
+    for item in fields(config):
+        if item.name.startswith("_"):
+            continue
+        value, key = getattr(config, item.name), prefix + item.name
+        if is_dataclass(value) and not isinstance(value, type):
+            validate_config(value, key + ".")
+        elif isinstance(value, dict):
+            for name, sub in value.items():
+                validate_config(sub, f"{key}.{name}.")
+        else:
+            check_range(item.name, value, key)
+    own = getattr(type(config), "validate", None)
+    if own is not None:
+        own(config, prefix)
+
+
 def apply_override(config: Any, assignment: str) -> None:
     """Apply ``a.b.c=value`` to a nested config, in place, with a clear error for unknown names."""
     if "=" not in assignment:

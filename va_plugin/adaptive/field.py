@@ -86,7 +86,7 @@ class ViewAdaptiveFieldConfig(FieldConfig):
         """The wrapper for a scene: it needs the number of training views (one branch each)."""
         return self.setup(num_train_views=scene.num_train_views)
 
-    def validate(self) -> None:
+    def validate(self, prefix: str = "") -> None:
         if self.fusion and not self.branches:
             raise ConfigError("fusion needs the per-view branches (set branches=true or fusion=false)")
         if not (self.pretrain_fraction >= 0.0 and self.branch_fraction >= 0.0

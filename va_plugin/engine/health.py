@@ -70,8 +70,7 @@ class HealthConfig:
     final_check_after: int = 100
     """Runs shorter than this many steps skip that check."""
 
-    def validate(self) -> None:
-
+    def validate(self, prefix: str = "") -> None:
         if not (0.0 < self.lr_backoff < 1.0):
             raise ConfigError(f"health.lr_backoff must be in (0, 1), got {self.lr_backoff}")
         if self.snapshot_every < 1 or self.max_skips_in_a_row < 1 or self.max_restores < 0:

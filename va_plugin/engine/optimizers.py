@@ -19,14 +19,15 @@ class OptimizerConfig:
     weight_decay: float = 0.0
     """L2 weight decay."""
 
-    def validate(self, group: str) -> None:
-        """Refuse settings that would train backwards or not at all (a negative rate is gradient ascent)."""
+    def validate(self, prefix: str = "") -> None:
+        """Refuse settings that would train backwards or not at all (a negative rate is gradient ascent);
+        ``prefix``: the group's key (``optimizers.fields.``)."""
         if not (math.isfinite(self.lr) and self.lr >= 0.0):
-            raise ConfigError(f"optimizers.{group}.lr must be a finite number >= 0, got {self.lr}")
+            raise ConfigError(f"{prefix}lr must be a finite number >= 0, got {self.lr}")
         if not (math.isfinite(self.eps) and self.eps > 0.0):
-            raise ConfigError(f"optimizers.{group}.eps must be a finite number > 0, got {self.eps}")
+            raise ConfigError(f"{prefix}eps must be a finite number > 0, got {self.eps}")
         if not (math.isfinite(self.weight_decay) and self.weight_decay >= 0.0):
-            raise ConfigError(f"optimizers.{group}.weight_decay must be a finite number >= 0, got {self.weight_decay}")
+            raise ConfigError(f"{prefix}weight_decay must be a finite number >= 0, got {self.weight_decay}")
 
 
 @dataclass
@@ -38,11 +39,11 @@ class SchedulerConfig:
     final_fraction: float = 0.05
     """Learning rate at the last step, as a fraction of the base rate."""
 
-    def validate(self) -> None:
+    def validate(self, prefix: str = "scheduler.") -> None:
         if self.warmup_steps < 0:
-            raise ConfigError(f"scheduler.warmup_steps must be >= 0, got {self.warmup_steps}")
+            raise ConfigError(f"{prefix}warmup_steps must be >= 0, got {self.warmup_steps}")
         if not (math.isfinite(self.final_fraction) and 0.0 <= self.final_fraction <= 1.0):
-            raise ConfigError(f"scheduler.final_fraction must be in [0, 1], got {self.final_fraction}")
+            raise ConfigError(f"{prefix}final_fraction must be in [0, 1], got {self.final_fraction}")
 
     def factor(self, step: int, max_steps: int) -> float:
         if self.warmup_steps > 0 and step < self.warmup_steps:

@@ -17,7 +17,7 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
-from va_plugin.config import InstantiateConfig, to_dict
+from va_plugin.config import InstantiateConfig, to_dict, validate_config
 from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check_usable
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
@@ -74,6 +74,13 @@ class TrainerConfig(InstantiateConfig):
     """Show a progress bar."""
     health: HealthConfig = field(default_factory=HealthConfig)
     """What counts as a bad step (non-finite, blow-up) and how the run recovers from it."""
+
+    def validate(self, prefix: str = "") -> None:
+        """What the field-by-field range rules do not cover (see :func:`~va_plugin.config.validate_config`)."""
+        if self.max_steps < 1:
+            raise ConfigError(f"max_steps must be at least 1, got {self.max_steps}")
+        if self.schedule_steps < 0:
+            raise ConfigError(f"schedule_steps must be >= 0 (0: max_steps), got {self.schedule_steps}")
 
 
 def schedule_horizon(config: TrainerConfig) -> int:
@@ -189,13 +196,7 @@ class Trainer:
 
     def __init__(self, config: TrainerConfig) -> None:
         self.config = config
-        if config.max_steps < 1:
-            raise ConfigError(f"max_steps must be at least 1, got {config.max_steps}")
-        if config.schedule_steps < 0:
-            raise ConfigError(f"schedule_steps must be >= 0 (0: max_steps), got {config.schedule_steps}")
-        for group, optimizer_config in config.optimizers.items():
-            optimizer_config.validate(group)
-        config.scheduler.validate()
+        validate_config(config)
         if config.num_threads > 0:
             torch.set_num_threads(config.num_threads)
         self.device = pick_device(config.device)
