@@ -81,9 +81,8 @@ def test_auto_picks_the_analytic_path_where_the_field_supports_it(tiny_scene, tm
     assert model.config.sdf_gradient == "auto" and model.sdf_gradient == "analytic"
     model = tiny_config("va-neus", tiny_scene, tmp_path / "b").setup().model
     assert model.sdf_gradient == "analytic"
-    # an activation the hand-written chain rule does not cover falls back to autograd
-    from va_plugin.models.neus import _supports_analytic_gradient
-
+    # an activation the hand-written chain rule does not cover: the field no longer declares the analytic
+    # gradient, so "auto" falls back to autograd and "analytic" is refused
+    assert model.field.analytic_sdf_gradient
     model.field.base.sdf_net.activation = torch.nn.Tanh()
-    assert not _supports_analytic_gradient(model.field)
-    assert not _supports_analytic_gradient(torch.nn.Linear(3, 1))  # no geometry_and_gradient at all
+    assert not model.field.analytic_sdf_gradient

@@ -162,7 +162,7 @@ def write_inconsistency(pipeline, run_dir: Path, scale: float = 0.5, scene_dir: 
 def write_diagnostics(pipeline, run_dir: Path, scale: float = 0.5, progress: bool = False) -> list[Path]:
     """Both pictures for a view-adaptive run (nothing for other fields); returns what was written."""
     field = pipeline.model.field
-    if not hasattr(field, "attention_matrix"):
+    if not field.has_view_branches:
         return []
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     written = []
@@ -170,6 +170,6 @@ def write_diagnostics(pipeline, run_dir: Path, scale: float = 0.5, progress: boo
     if attention is not None:
         written.append(attention)
     if field.branches_active():
-        scene_dir = getattr(pipeline.datamanager.config.dataparser, "data", None)
+        scene_dir = pipeline.datamanager.config.dataparser.data
         written.append(write_inconsistency(pipeline, run_dir, scale, scene_dir, progress))
     return written

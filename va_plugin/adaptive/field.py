@@ -102,6 +102,8 @@ class ViewAdaptiveFieldConfig(FieldConfig):
 class ViewAdaptiveField(Field):
     """A base field plus n per-view branches and a self-attention fusion module."""
 
+    has_view_branches = True
+
     def __init__(self, config: ViewAdaptiveFieldConfig, num_train_views: int) -> None:
         super().__init__()
         config.validate()
@@ -163,7 +165,18 @@ class ViewAdaptiveField(Field):
     def decode_color(self, features: torch.Tensor) -> torch.Tensor:
         return self.base.decode_color(features)
 
-    BASE_PASSTHROUGH = frozenset({"geometry_and_gradient", "sdf", "density", "bound"})
+    @property
+    def analytic_sdf_gradient(self) -> bool:
+        return self.base.analytic_sdf_gradient
+
+    @property
+    def bound(self) -> float | None:
+        return self.base.bound
+
+    def geometry_and_gradient(self, positions: torch.Tensor):
+        return self.base.geometry_and_gradient(positions)
+
+    BASE_PASSTHROUGH = frozenset({"sdf", "density"})
     """The base field's backbone-specific queries the wrapper passes on (when the base field has them)."""
 
     def __getattr__(self, name: str):

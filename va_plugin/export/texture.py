@@ -152,7 +152,7 @@ def run_views(pipeline, inconsistency: bool = False, progress: bool = False) -> 
     masks = None if dm.masks is None else dm.masks.cpu().numpy().reshape(dm.images.shape[:3]) > 0.5
     maps = None
     if inconsistency:
-        if not hasattr(pipeline.model.field, "branches_active") or not pipeline.model.field.branches_active():
+        if not pipeline.model.field.has_view_branches or not pipeline.model.field.branches_active():
             raise VAError("--use-inconsistency needs a view-adaptive run (va-neus, va-ngp) whose branches trained")
         from va_plugin.adaptive.diagnostics import inconsistency_maps
 

@@ -6,6 +6,7 @@ wrapper can act between the halves.
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -72,10 +73,22 @@ class HashGridFieldConfig(FieldConfig):
 
 class Field(nn.Module):
     """Base class of geometry + colour fields; subclasses set ``geometry_kind`` ("sdf" or "density") and
-    ``feature_dim`` (width of f_shared)."""
+    ``feature_dim`` (width of f_shared).
+
+    The optional capabilities are declared here, with defaults for a field without them; models read the
+    declarations instead of probing for attributes: ``analytic_sdf_gradient`` (``geometry_and_gradient``
+    works), ``has_view_branches`` (the per-view wrapper: ``branches_active``, ``attention_matrix``),
+    ``bound`` and the hooks ``extra_losses``, ``training_callbacks`` and ``diagnostics``."""
 
     geometry_kind: str = "sdf"
     feature_dim: int = 0
+    analytic_sdf_gradient: bool = False
+    """Whether :meth:`geometry_and_gradient` gives the SDF's gradient in the forward pass (False: the model
+    takes the gradient by autograd)."""
+    has_view_branches: bool = False
+    """Whether the field is the view-adaptive wrapper (per-view branches, their phases and attention)."""
+    bound: float | None = None
+    """The field covers [-bound, bound]^3 (a hash grid's extent); None where it is not bounded."""
 
     def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``positions [..., 3]`` -> (SDF or raw density ``[..., 1]``, geometry feature ``[..., G]``)."""
@@ -90,6 +103,11 @@ class Field(nn.Module):
         """RGB in [0, 1] ``[..., 3]`` from a feature ``[..., feature_dim]``."""
         raise NotImplementedError
 
+    def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` in one pass;
+        only for fields that declare ``analytic_sdf_gradient``."""
+        raise NotImplementedError(f"{type(self).__name__} has no analytic SDF gradient")
+
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
               weights=None, ray_indices=None) -> dict[str, torch.Tensor]:
         """RGB of samples. ``camera_indices`` (``[...]``, -1 for novel views), the detached rendering
@@ -103,6 +121,21 @@ class Field(nn.Module):
     def param_groups(self) -> dict[str, list[nn.Parameter]]:
         """Parameters keyed like the optimizer config."""
         return {"fields": list(self.parameters())}
+
+    def extra_losses(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor] | None = None,
+                     colour_loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+                     ) -> dict[str, torch.Tensor]:
+        """Loss terms of the field's own (e.g. the view-adaptive regularizers) from the model's ``outputs``,
+        the ``batch`` and the model's photometric loss; none by default."""
+        return {}
+
+    def training_callbacks(self) -> list:
+        """Callbacks the trainer runs for the field (e.g. phase switches); none by default."""
+        return []
+
+    def diagnostics(self) -> dict[str, float]:
+        """Scalars worth logging; none by default."""
+        return {}
 
 
 class MLP(nn.Module):

@@ -17,7 +17,7 @@ from va_plugin.errors import ConfigError
 from va_plugin.fields.base import MLP, Field, HashGridFieldConfig
 from va_plugin.fields.encodings.hash_grid import CPU_CHUNK_POINTS
 from va_plugin.fields.encodings.positional import optional_direction_encoding
-from va_plugin.fields.sdf_field import mlp_with_input_gradient
+from va_plugin.fields.sdf_field import has_analytic_slope, mlp_with_input_gradient
 
 SDF_GRADIENT_KINDS = ("analytic", "finite_difference")
 
@@ -127,6 +127,15 @@ class HashSDFField(Field):
     def sdf(self, positions: torch.Tensor) -> torch.Tensor:
         """SDF only, ``[..., 1]``."""
         return self.geometry(positions)[0]
+
+    @property
+    def bound(self) -> float:
+        return float(self.config.bound)
+
+    @property
+    def analytic_sdf_gradient(self) -> bool:
+        """Finite differences need only the SDF; the grid's derivative needs the chain rule through the MLP."""
+        return self.config.sdf_gradient == "finite_difference" or has_analytic_slope(self.sdf_net)
 
     def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]``, with a

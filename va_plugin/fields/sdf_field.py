@@ -69,6 +69,11 @@ class SDFField(Field):
         out = self.sdf_net(self.position_encoding(positions))
         return out[..., :1], out[..., 1:]
 
+    @property
+    def analytic_sdf_gradient(self) -> bool:
+        """The hand-written chain rule covers the SDF network (its activation and linear output)."""
+        return has_analytic_slope(self.sdf_net)
+
     def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` in one pass
         (:func:`mlp_with_input_gradient`, pulled back through the encoding): losses on the gradient need
@@ -106,6 +111,15 @@ def mlp_with_input_gradient(net: MLP, inputs: torch.Tensor) -> tuple[torch.Tenso
     for layer, slope in zip(reversed(net.hidden), reversed(slopes)):
         grad = (grad * slope) @ layer.weight
     return out, grad
+
+
+ANALYTIC_ACTIVATIONS = (nn.Softplus, nn.ReLU)
+"""The activations :func:`mlp_with_input_gradient` has the slope of."""
+
+
+def has_analytic_slope(net: MLP) -> bool:
+    """Whether :func:`mlp_with_input_gradient` handles ``net``: a covered activation, a linear output layer."""
+    return net.out_activation is None and isinstance(net.activation, ANALYTIC_ACTIVATIONS)
 
 
 def _activation_and_slope(activation: nn.Module, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

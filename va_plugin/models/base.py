@@ -5,11 +5,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
 from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
+from va_plugin.fields.base import Field
 from va_plugin.model_components import renderers
 from va_plugin.model_components.losses import psnr_from_mse, rgb_loss
 from va_plugin.rays import RayBundle
@@ -38,9 +40,12 @@ ExtraLoss = Callable[[dict[str, torch.Tensor], dict[str, torch.Tensor], int], di
 
 
 class Model(nn.Module):
-    """Base class of models. Subclasses implement ``get_outputs`` and ``get_loss_dict``."""
+    """Base class of models. Subclasses set ``field`` and implement ``get_outputs`` and ``get_loss_dict``."""
 
     config: ModelConfig
+    field: Field
+    fill_mesh_cavities: bool = False
+    """Whether :func:`va_plugin.export.mesh.extract_mesh` makes enclosed empty space solid (ngp sets it)."""
 
     def __init__(self, config: ModelConfig, scene: SceneInfo) -> None:
         super().__init__()
@@ -56,9 +61,7 @@ class Model(nn.Module):
         """Called by the trainer before each step; schedules read ``self.step``, and the field's own
         schedules (``Field.update_step``) follow."""
         self.step = step
-        field = getattr(self, "field", None)
-        if field is not None:
-            field.update_step(step, self.scene.max_steps)
+        self.field.update_step(step, self.scene.max_steps)
 
     def restore_step(self, step: int) -> None:
         """Set the step schedules (``self.step``, the field's) as :meth:`update_step` sets them for step
@@ -90,9 +93,7 @@ class Model(nn.Module):
     def apply_extra_losses(self, losses: dict[str, torch.Tensor], outputs, batch) -> dict[str, torch.Tensor]:
         """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the
         view-adaptive regularizers) and the registered hooks'."""
-        field_losses = getattr(getattr(self, "field", None), "extra_losses", None)
-        if field_losses is not None:
-            losses.update(field_losses(outputs, batch, self.colour_loss))
+        losses.update(self.field.extra_losses(outputs, batch, self.colour_loss))
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
         return losses
@@ -112,14 +113,12 @@ class Model(nn.Module):
 
     def training_callbacks(self) -> list[object]:
         """Callbacks the trainer runs (e.g. phase switches); the model knows nothing of the trainer.
-        By default those of the model's ``field``, if it has any."""
-        make = getattr(getattr(self, "field", None), "training_callbacks", None)
-        return list(make()) if make is not None else []
+        By default those of the model's ``field``."""
+        return list(self.field.training_callbacks())
 
     def diagnostics(self) -> dict[str, float]:
         """Scalars worth logging (e.g. inv_s); by default those of the model's ``field``."""
-        report = getattr(getattr(self, "field", None), "diagnostics", None)
-        return dict(report()) if report is not None else {}
+        return dict(self.field.diagnostics())
 
     def sharpness(self) -> float | None:
         """NeuS's inv_s for the training guard's collapse test; None for models without one."""
@@ -149,4 +148,9 @@ class Model(nn.Module):
     def surface_color(self, points: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
         """Canonical RGB ``[n, 3]`` of surface points seen head-on from outside (mesh vertex colours)."""
         raise NotImplementedError
+
+    def prepare_mesh_grid(self, values: np.ndarray, spacing: float) -> np.ndarray:
+        """The grid of :meth:`mesh_field` values (cells ``spacing`` apart) as marching cubes should see it
+        (e.g. ngp's density smoothed in log space); unchanged by default."""
+        return values
 

@@ -75,7 +75,7 @@ class NGPModel(Model):
         self.field = config.field.setup_for_scene(scene)
         if self.field.geometry_kind != "density":
             raise ConfigError("the ngp model needs a field whose geometry is a density")
-        bound = getattr(self.field, "bound", None)
+        bound = self.field.bound
         if bound is not None and bound < scene.scene_radius:
             raise ConfigError(f"field.bound ({bound}) must be at least the scene radius ({scene.scene_radius})")
         self.occupancy_grid: OccupancyGrid | None = \
