@@ -26,7 +26,7 @@ import os
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -115,16 +115,18 @@ def _override_list(overrides: Mapping[str, Any] | Iterable[str] | None) -> list[
 
 
 def _apply_generator_options(parser_config, given: dict[str, Any]) -> None:
-    """Copy the generator options that were given onto the dataparser config, refusing ones it lacks."""
+    """Copy the generator options that were given onto the dataparser config (a dataclass), refusing ones
+    it has no field for."""
+    options = {f.name for f in fields(parser_config)}
     for name, (option, formats) in GENERATOR_OPTIONS.items():
         value = given.get(name)
         if value is None:
             continue
         if value == "all":  # every view the input has: the generators' parsers train on all by default
-            if hasattr(parser_config, option):
+            if option in options:
                 setattr(parser_config, option, max(VIEW_COUNTS))
             continue
-        if not hasattr(parser_config, option):
+        if option not in options:
             raise ConfigError(f"--{name} applies to {formats} inputs only")
         setattr(parser_config, option, value)
 

@@ -16,6 +16,7 @@ import inspect
 import itertools
 import json
 import math
+import os
 import textwrap
 from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import PurePath
@@ -64,7 +65,7 @@ def to_dict(config: Any) -> Any:
         return {str(k): to_dict(v) for k, v in config.items()}
     if isinstance(config, (list, tuple)):
         return [to_dict(v) for v in config]
-    if hasattr(config, "__fspath__"):
+    if isinstance(config, os.PathLike):
         return str(config)
     if isinstance(config, (int, float, str, bool)) or config is None:
         return config
@@ -160,7 +161,7 @@ def apply_override(config: Any, assignment: str) -> None:
         if isinstance(target, dict) and part in target:  # e.g. optimizers.fields.lr
             target = target[part]
             continue
-        if isinstance(target, dict) or not hasattr(target, part):
+        if not is_dataclass(target) or part not in {f.name for f in fields(target)}:
             raise ConfigError(f"unknown option {'.'.join(parts[: depth + 1])!r} in {assignment!r}"
                               f"{_nearest_keys(config, path.strip())}")
         target = getattr(target, part)
