@@ -32,7 +32,7 @@ setup(
         "ninja",         # builds the hash grid's fused CPU kernels (torch.utils.cpp_extension needs it)
     ],
     extras_require={
-        "test": ["pytest", "hypothesis", "ruff"],  # ruff: the linter `make test` runs first
+        "test": ["pytest", "hypothesis", "ruff"],  # the linter `make test` runs first is ruff
         "plots": ["matplotlib"],
         "ray": ["ray"],  # va-batch --engine ray
     },
