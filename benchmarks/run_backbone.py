@@ -55,7 +55,7 @@ def add_arguments(parser) -> None:
     parser.add_argument("--kinds", default=None,
                         help="semicolon-separated sets of inconsistency kinds, each a comma-separated subset of "
                              "geometric,appearance,pose (default: all three together); e.g. "
-                             "'appearance;geometric,pose' splits a level's error into its colour and its "
+                             "'appearance;geometric,pose' splits a level's error into its color and its "
                              "geometric part. Scenes with fewer kinds are named NAME+kind+kind")
     parser.add_argument("--budgets", default="1",
                         help="comma-separated multiples of each variant's default step budget (e.g. 1,2,4)")

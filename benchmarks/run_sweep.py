@@ -5,7 +5,7 @@ Lemma 1 bounds the error of an averaging reconstruction by the mean per-view err
 Theorem 1 says view-adaptive learning shrinks it by a factor (1 - lambda_adapt) < 1. So, with the measured
 size of the injected errors on the x axis, the original method's error should grow with it and the
 adaptive method's should grow more slowly. The x value of a scene is the mean over all its input views of
-the RMS colour error of the input against its clean render (the clean view 0 counting 0), from the scene
+the RMS color error of the input against its clean render (the clean view 0 counting 0), from the scene
 builder's measurements in scene.json. For every scene and backbone, the error's slope against it is fitted
 by least squares over the levels; the report gives the slopes of both methods (mean ± sd over scenes),
 their ratio (the theorem's 1 - lambda_adapt, if it holds) and a plain verdict, for the Chamfer distance and
@@ -54,7 +54,7 @@ def plan(preset, args, sources: list[str]) -> list[RowSpec]:
 
 
 def render_rmse(row: dict[str, Any]) -> float:
-    """RMS colour error of the held-out renders, from their PSNR: 10^(-PSNR/20)."""
+    """RMS color error of the held-out renders, from their PSNR: 10^(-PSNR/20)."""
     psnr = row.get("psnr")
     return 10.0 ** (-float(psnr) / 20.0) if psnr is not None and math.isfinite(psnr) else float("nan")
 

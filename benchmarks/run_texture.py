@@ -1,7 +1,7 @@
 """Textured meshes against field renders on held-out views (issue 20).
 
 For each run folder: extract the mesh (marching cubes, 128^3), bake a texture from the training views with
-robust fusion (per-view colour harmonisation, then a consensus) and with plain angle-weighted averaging
+robust fusion (per-view color harmonisation, then a consensus) and with plain angle-weighted averaging
 (``--bakes`` adds robust fusion without the harmonisation and the average with it), render both by ray
 casting at every held-out view, and score them with the field's own renders (PSNR, SSIM, LPIPS). The
 textured renders take one ray through each pixel centre, as the field's do (``--supersample 2``: 2x2 rays
@@ -36,7 +36,7 @@ from va_plugin.export.views import Views
 from va_plugin.export.writing import bake_picture
 
 KEYS = ("psnr", "ssim", "lpips")
-BAKES = {"robust": dict(fusion="robust"),  # with the per-view colour harmonisation (the default)
+BAKES = {"robust": dict(fusion="robust"),  # with the per-view color harmonisation (the default)
          "mean": dict(fusion="mean"),  # the plain angle-weighted average
          "robust-plain": dict(fusion="robust", harmonise_views=False),
          "mean-harmonised": dict(fusion="mean", harmonise_views=True)}

@@ -54,11 +54,11 @@ def main() -> int:
     print("| arm | wall s per object | " + " | ".join(m for m, _ in METRICS) + " | runs |")
     print("|---|---|" + "---|" * len(METRICS) + "---|")
     for index, (name, variants, seconds) in enumerate(arms):
-        colour = f"C{index}"
+        color = f"C{index}"
         run_means = {m: [statistics.mean(by[(o, v)][m] for o in objects) for v in variants] for m, _ in METRICS}
         for ax, (metric, label) in zip(axes, METRICS):
-            ax.scatter([seconds] * len(variants), run_means[metric], s=12, color=colour, alpha=0.5)
-            ax.scatter([seconds], [statistics.mean(run_means[metric])], s=60, color=colour, label=name)
+            ax.scatter([seconds] * len(variants), run_means[metric], s=12, color=color, alpha=0.5)
+            ax.scatter([seconds], [statistics.mean(run_means[metric])], s=60, color=color, label=name)
             ax.set_xlabel("wall seconds per object, 2 idle cores, with the mesh")
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)

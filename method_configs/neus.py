@@ -1,7 +1,7 @@
 """The ``neus`` method: NeuS on a hash-grid SDF field, sized for 2 CPU cores.
 
 The default field is the hash-grid SDF (:class:`HashSDFFieldConfig`): a multiresolution hash encoding
-with levels opening coarse to fine, a one-layer SDF MLP and a view-independent colour MLP. A
+with levels opening coarse to fine, a one-layer SDF MLP and a view-independent color MLP. A
 positional-encoding network (a 4 x 128 SDF MLP, 500 steps) is the ``mlp`` preset; ``accurate`` is the
 paper's 4 x 256 network.
 """

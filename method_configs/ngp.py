@@ -12,12 +12,12 @@ from va_plugin.registry import MethodSpecification, Preset
 
 
 def ngp_config() -> TrainerConfig:
-    """The default NGP run on a 4-view object (view-independent colour, coarse-to-fine levels)."""
+    """The default NGP run on a 4-view object (view-independent color, coarse-to-fine levels)."""
     return TrainerConfig(
         method_name="ngp",
         pipeline=PipelineConfig(
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
-            # view-independent colour and levels opening coarse to fine (few views overfit otherwise)
+            # view-independent color and levels opening coarse to fine (few views overfit otherwise)
             model=NGPModelConfig(field=DensityFieldConfig(direction_frequencies=-1, coarse_to_fine_fraction=0.3),
                                  n_samples=96),
         ),

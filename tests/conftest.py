@@ -88,7 +88,7 @@ def toy_object():
 
 
 def toy_albedo(points):
-    """Saturated colours far from white and gray, so a colour key separates them cleanly."""
+    """Saturated colors far from white and gray, so a color key separates them cleanly."""
     import numpy as np
 
     return np.stack([0.6 + 0.3 * np.sign(points[:, 0]), 0.15 + 0.3 * (points[:, 2] > 0), np.full(len(points), 0.1)], -1)

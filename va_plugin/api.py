@@ -25,7 +25,7 @@ import json
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
@@ -41,7 +41,7 @@ from va_plugin.engine.trainer import (
     TrainingInterrupted,
     list_checkpoints,
     load_checkpoint,
-    schedule_horizon,
+    schedule_steps_of,
     train_run,
 )
 from va_plugin.errors import CheckpointError, ConfigError
@@ -103,16 +103,18 @@ def _override_list(overrides: Mapping[str, Any] | Iterable[str] | None) -> list[
 
 
 def _apply_generator_options(parser_config, given: dict[str, Any]) -> None:
-    """Copy the generator options that were given onto the dataparser config, refusing ones it lacks."""
+    """Copy the generator options that were given onto the dataparser config (a dataclass), refusing ones
+    it has no field for."""
+    options = {f.name for f in fields(parser_config)}
     for name, (option, formats) in GENERATOR_OPTIONS.items():
         value = given.get(name)
         if value is None:
             continue
         if value == "all":  # every view the input has: the generators' parsers train on all by default
-            if hasattr(parser_config, option):
+            if option in options:
                 setattr(parser_config, option, max(VIEW_COUNTS))
             continue
-        if not hasattr(parser_config, option):
+        if option not in options:
             raise ConfigError(f"--{name} applies to {formats} inputs only")
         setattr(parser_config, option, value)
 
@@ -249,7 +251,7 @@ def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRu
                               "from a checkpoint before the divergence)")
     config = copy.deepcopy(config)
     torch_device = pick_device(device if device is not None else "auto")
-    pipeline = config.pipeline.setup(device=torch_device, max_steps=schedule_horizon(config))
+    pipeline = config.pipeline.setup(device=torch_device, schedule_steps=schedule_steps_of(config))
     try:
         pipeline.model.load_state_dict(state["model"])
     except RuntimeError as exc:
@@ -264,9 +266,9 @@ class MeshFiles:
     """What :func:`export_mesh` wrote, and the meshes themselves."""
 
     mesh: trimesh.Trimesh
-    """The marching-cubes mesh (vertex colours unless textured)."""
+    """The marching-cubes mesh (vertex colors unless textured)."""
     path: Path | None = None
-    """The mesh file with vertex colours (None when only the textured mesh was asked for)."""
+    """The mesh file with vertex colors (None when only the textured mesh was asked for)."""
     textured: Any = None
     """The textured mesh (:class:`~va_plugin.export.texture.TexturedMesh`), None without a texture."""
     textured_paths: list[Path] = field(default_factory=list)
@@ -302,12 +304,12 @@ def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution
                 vertex_colors: str | Path | None = MESH_FILE, largest_component: bool = False,
                 max_faces: int | None = None, use_inconsistency: bool = False, harmonise: bool | None = None,
                 progress: bool = False, device: str | None = None) -> MeshFiles:
-    """The run's mesh: marching cubes of its field on a ``resolution``^3 grid, written with vertex colours
+    """The run's mesh: marching cubes of its field on a ``resolution``^3 grid, written with vertex colors
     to ``RUN/mesh.ply`` (``vertex_colors``: another name, None for none), and with ``texture`` also
     UV-unwrapped, baked from the input views and written to ``output`` (default ``RUN/mesh.glb``; ``.obj``
     writes ``.obj`` + ``.mtl`` + ``.png``). ``max_faces``: simplify before the unwrap (default 40000,
     0 keeps every face); ``fusion``: ``robust`` or ``mean`` per texel; ``harmonise=False`` skips levelling
-    the views' colour gains. Relative file names are inside the run folder."""
+    the views' color gains. Relative file names are inside the run folder."""
     run_path = run.path if isinstance(run, LoadedRun) else Path(run)
     out = None if output is None else run_path / output
     if texture and out is None:
@@ -399,7 +401,7 @@ class Reconstruction:
 
     run_dir: Path
     mesh: Path
-    """``RUN/mesh.ply``: the mesh with vertex colours."""
+    """``RUN/mesh.ply``: the mesh with vertex colors."""
     textured_mesh: Path | None
     """``RUN/mesh.glb``: the mesh with its baked texture (None with ``texture=False``)."""
     turntable: Path | None

@@ -17,7 +17,9 @@ import inspect
 import itertools
 import json
 import math
+import os
 import textwrap
+import warnings
 from dataclasses import dataclass, field, fields, is_dataclass
 from pathlib import PurePath
 from typing import Any
@@ -25,8 +27,29 @@ from typing import Any
 from va_plugin.errors import ConfigError
 
 
+class Checked:
+    """A config with checks across its fields (:func:`validate_config` runs them with the range rules)."""
+
+    def validate(self, prefix: str = "") -> None:
+        """Refuse combinations of values that cannot work; ``prefix``: the config's ``--set`` key."""
+
+
+RENAMED_OPTIONS = {"shared_colour_weight": "shared_color_weight", "consistent_colour_cast": "consistent_color_cast",
+                   "colour_key": "color_key"}
+"""Old option name -> its name now: an old checkpoint's config and an old ``--set`` key still work."""
+
+
+def _current_name(part: str) -> str:
+    """An option's name now; an old name is taken with a one-line note."""
+    if part in RENAMED_OPTIONS:
+        warnings.warn(f"option {part} is now {RENAMED_OPTIONS[part]}; the old name still works for now",
+                      stacklevel=3)
+        return RENAMED_OPTIONS[part]
+    return part
+
+
 @dataclass
-class InstantiateConfig:
+class InstantiateConfig(Checked):
     """A config that builds the object it describes."""
 
     _target: type = field(default=None, repr=False)  # type: ignore[assignment]
@@ -39,7 +62,9 @@ class InstantiateConfig:
 
     def __setstate__(self, state: dict) -> None:
         """Unpickling (a checkpoint's config): options added since the run was written take their
-        defaults, so older runs still load, evaluate and export."""
+        defaults, so older runs still load, evaluate and export; options renamed since take their new
+        names (:data:`RENAMED_OPTIONS`)."""
+        state = {RENAMED_OPTIONS.get(name, name): value for name, value in state.items()}
         self.__dict__.update(state)
         for item in fields(self):
             if item.name in state:
@@ -82,7 +107,7 @@ def to_dict(config: Any) -> Any:
         return {str(k): to_dict(v) for k, v in config.items()}
     if isinstance(config, (list, tuple)):
         return [to_dict(v) for v in config]
-    if hasattr(config, "__fspath__"):
+    if isinstance(config, os.PathLike):
         return str(config)
     if isinstance(config, (int, float, str, bool)) or config is None:
         return config
@@ -142,10 +167,10 @@ _POSITIVE = frozenset({
     "rays_per_batch", "resolution", "scene_radius", "sdf_width", "skip_margin",
     "snapshot_every", "softplus_beta", "update_every"})
 _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
-    "color_layers", "consistent_colour_cast", "diagnostics_scale",
+    "color_layers", "consistent_color_cast", "diagnostics_scale",
     "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",
     "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "mesh_smoothing", "min_sample_weight",
-    "n_importance", "num_threads", "schedule_steps", "sdf_layers", "shared_colour_weight", "shared_lr_scale",
+    "n_importance", "num_threads", "schedule_steps", "sdf_layers", "shared_color_weight", "shared_lr_scale",
     "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels", "threshold", "up_sample_steps",
     "warmup_steps", "weight_decay", "min_foreground_opacity", "final_check_after"})
 _UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "train_until"})
@@ -184,9 +209,8 @@ def validate_config(config: Any, prefix: str = "") -> None:
                 validate_config(sub, f"{key}.{name}.")
         else:
             check_range(item.name, value, key)
-    own = getattr(type(config), "validate", None)
-    if own is not None:
-        own(config, prefix)
+    if isinstance(config, Checked):
+        config.validate(prefix)
 
 
 def apply_override(config: Any, assignment: str) -> None:
@@ -194,13 +218,14 @@ def apply_override(config: Any, assignment: str) -> None:
     if "=" not in assignment:
         raise ConfigError(f"override {assignment!r} must look like name.path=value")
     path, text = assignment.split("=", 1)
-    parts = path.strip().split(".")
+    parts = [_current_name(part) for part in path.strip().split(".")]
+    path = ".".join(parts)
     target = config
     for depth, part in enumerate(parts[:-1]):
         if isinstance(target, dict) and part in target:  # e.g. optimizers.fields.lr
             target = target[part]
             continue
-        if isinstance(target, dict) or not hasattr(target, part):
+        if not is_dataclass(target) or part not in {f.name for f in fields(target)}:
             raise ConfigError(f"unknown option {'.'.join(parts[: depth + 1])!r} in {assignment!r}"
                               f"{_nearest_keys(config, path.strip())}")
         target = getattr(target, part)

@@ -102,7 +102,7 @@ class MeshRenderer:
         return result["t_hit"].numpy(), result["primitive_ids"].numpy().astype(np.int64), bary
 
     def shade(self, face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
-        """Shaded colours ``[n, 3]`` of hits given by face ids ``[n]`` and barycentrics ``[n, 3]``."""
+        """Shaded colors ``[n, 3]`` of hits given by face ids ``[n]`` and barycentrics ``[n, 3]``."""
         corners = self.faces[face_ids]
         points = np.einsum("nk,nkc->nc", bary, self.rest_vertices[corners])
         normals = np.einsum("nk,nkc->nc", bary, self.vertex_normals[corners])

@@ -67,28 +67,28 @@ def test_the_phase_decision_reads_the_training_masks():
     assert input_silhouette_support(SimpleNamespace(cameras=cameras, masks=None, scene_radius=1.0)) is None
 
 
-def test_colour_cast_separates_a_white_balance_shift_from_brightness():
+def test_color_cast_separates_a_white_balance_shift_from_brightness():
     """Hand-computed: a common gain is brightness, not a cast; a per-channel spread is."""
-    from va_plugin.analysis.consistency import ColourCast
+    from va_plugin.analysis.consistency import ColorCast
 
-    bright = ColourCast(np.array([[1.0, 1.0, 1.0], [1.1, 1.1, 1.1]]), points=10, seconds=0.0)
+    bright = ColorCast(np.array([[1.0, 1.0, 1.0], [1.1, 1.1, 1.1]]), points=10, seconds=0.0)
     assert bright.worst == pytest.approx(0.0, abs=1e-9) and bright.brightness == pytest.approx(np.log(1.1))
-    tinted = ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95]]), points=10, seconds=0.0)
+    tinted = ColorCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95]]), points=10, seconds=0.0)
     logs = np.log([1.05, 1.0, 0.95])
     assert tinted.worst == pytest.approx(np.max(np.abs(logs - logs.mean())))
-    assert tinted.as_dict()["test"] == "colour_cast" and len(tinted.as_dict()["gains"]) == 2
-    # in colour units: a dark channel's share counts for as little as it shows
-    dim = ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95]]), 10, 0.0, np.array([[0.5, 0.5, 0.05]] * 2))
+    assert tinted.as_dict()["test"] == "color_cast" and len(tinted.as_dict()["gains"]) == 2
+    # in color units: a dark channel's share counts for as little as it shows
+    dim = ColorCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95]]), 10, 0.0, np.array([[0.5, 0.5, 0.05]] * 2))
     assert dim.worst_shift == pytest.approx(max(abs(logs - logs.mean()) * [0.5, 0.5, 0.05]))
 
 
-def test_colour_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
+def test_color_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
     """On a (tiny) trained run of 8 views: tinting view 2's object by (1.1, 1, 0.9) divides its fitted gains
     by the tint and leaves view 0 at 1 (the gains themselves are far from 1 here: the start sphere does not
-    register the mug's views; what the test checks is that the fit reads the views' colour ratios)."""
+    register the mug's views; what the test checks is that the fit reads the views' color ratios)."""
     from conftest import tiny_config
 
-    from va_plugin.analysis.consistency import colour_cast
+    from va_plugin.analysis.consistency import color_cast
     from va_plugin.api import load_run
     from va_plugin.bench.scenes.builder import build_procedural_scene
     from va_plugin.export.texture import run_views
@@ -99,10 +99,10 @@ def test_colour_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
     tiny_config("neus", scene, run, steps=2).setup().train()
     pipeline, _ = load_run(run, "cpu").parts()
     views = run_views(pipeline)
-    before = colour_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=32)
+    before = color_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=32)
     tint = np.array([1.1, 1.0, 0.9], np.float32)
     images = views.images.copy()
     images[2] = np.where(views.masks[2][..., None], np.clip(images[2] * tint, 0, 1), images[2])
-    after = colour_cast(pipeline.model, views.cameras, images, views.masks, resolution=32)
+    after = color_cast(pipeline.model, views.cameras, images, views.masks, resolution=32)
     assert before.points > 0 and np.all(after.gains[0] == 1.0)
     np.testing.assert_allclose(after.gains[2], before.gains[2] / tint, rtol=0.03)

@@ -62,7 +62,7 @@ def test_diagnostics_of_a_plain_run_is_a_clear_error(tiny_scene, tmp_path, capsy
     ("va-neus", (0.0, 1.0)),    # branches alone
 ])
 def test_one_pass_maps_equal_two_separate_renders(method, phase_fractions, tiny_scene, tmp_path):
-    """The maps render each view once (own and canonical colour from the same samples); that must be
+    """The maps render each view once (own and canonical color from the same samples); that must be
     exactly what two separate renders, own path and novel-view path, give."""
     import torch
 

@@ -1,8 +1,8 @@
-"""The adaptive colour path's fast (culled, routed) implementation against a plain-torch reference, in
+"""The adaptive color path's fast (culled, routed) implementation against a plain-torch reference, in
 train mode, forward and gradients with the same random cotangents, on several shapes (gsplat's habit).
 
 The reference runs every sample through every path (the shared decoder, every view's branch, the
-attention) and picks each sample's colour with ``torch.where``: the shared colour for a sample at most
+attention) and picks each sample's color with ``torch.where``: the shared color for a sample at most
 ``min_sample_weight`` heavy or of a novel view, its own view's branch in phase 2 (and, in phase 3, for the
 visible samples that are not among their ray's ``fused_samples_per_ray`` heaviest), f_fused,i for the
 rest. The fast path evaluates the branches and the attention only where they are used."""
@@ -94,7 +94,7 @@ def _forward_and_gradients(field, compute, inputs, cotangents):
     grads = {name: p.grad.clone() if p.grad is not None else torch.zeros_like(p)
              for name, p in field.named_parameters()}
     for name, tensor in (("positions", inputs[0]), ("geo_features", inputs[3])):  # the density field's
-        grads[name] = tensor.grad.clone() if tensor.grad is not None else torch.zeros_like(tensor)  # colour: no x
+        grads[name] = tensor.grad.clone() if tensor.grad is not None else torch.zeros_like(tensor)  # color: no x
     return {key: value.detach() for key, value in out.items()}, grads
 
 
@@ -130,7 +130,7 @@ def test_fast_path_matches_the_reference_forward_and_backward(base, phase, k, sh
 @pytest.mark.parametrize("base", sorted(BASES))
 def test_every_sample_path_matches_the_reference_with_nothing_culled(base):
     """Without rendering weights every sample of a training view is fused (and a novel view's sample keeps
-    the shared colour): the reference with every weight above the threshold and every sample fused."""
+    the shared color): the reference with every weight above the threshold and every sample fused."""
     field = _field(base, FUSION, 0)
     positions, directions, normals, geo, views, weights, rays = inputs = _inputs(base, 4, 6, seed=3)
     gen = torch.Generator().manual_seed(11)

@@ -88,7 +88,7 @@ def test_canonical_path_is_deterministic_and_ignores_the_view(method, tiny_scene
     again = model.render_rays(RayBundle(origins, directions, torch.full_like(rows, -1)), keys=("rgb",))["rgb"]
     assert torch.equal(renders["novel"], again)
     assert not torch.allclose(renders["view0"], renders["view2"]), "branches should change a view's render"
-    # the canonical colour of a point does not depend on which camera index a caller passes for "novel"
+    # the canonical color of a point does not depend on which camera index a caller passes for "novel"
     points = torch.rand(64, 3) - 0.5
     normals = torch.nn.functional.normalize(torch.randn(64, 3), dim=-1)
     colors = model.surface_color(points, normals)
@@ -162,42 +162,42 @@ def test_phases_follow_schedule_steps_not_the_budget(tiny_scene, tmp_path):
 
 
 def test_a_consistent_scene_skips_the_adaptive_phases(tiny_scene, tmp_path):
-    # a huge threshold: whatever the colour casts, the scene counts as consistent (the per-view residuals
+    # a huge threshold: whatever the color casts, the scene counts as consistent (the per-view residuals
     # are recorded but do not vote)
     trainer = tiny_config("va-neus", tiny_scene, tmp_path / "run", steps=3,
-                          **{"pipeline.model.field.consistent_colour_cast": 1000.0}).setup()
+                          **{"pipeline.model.field.consistent_color_cast": 1000.0}).setup()
     trainer.train()
     field = trainer.model.field
     assert field.current_phase == PRETRAIN and bool(field.skipped)
     assert all(p.grad is None for p in field.branches.parameters())
     record = json.loads((tmp_path / "run" / RESIDUALS_FILE).read_text())
     assert record["consistent"] and len(record["views"]) == 4 and "psnr" in record["views"][0]
-    assert "colour_cast" in record  # None here: on the tiny scene no surface point is seen by two views
+    assert "color_cast" in record  # None here: on the tiny scene no surface point is seen by two views
     assert trainer.lr_multipliers["fields"] == 1.0
 
 
-def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, monkeypatch):
+def test_a_color_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, monkeypatch):
     """Silhouettes say consistent; a view whose fitted gains are 5% apart across channels on a mid-grey
     surface (a shift of 0.025, above the 0.012 threshold) makes the scene inconsistent, and the record
     says why."""
     import numpy as np
 
     from va_plugin.analysis import consistency as phases
-    from va_plugin.analysis.consistency import ColourCast
+    from va_plugin.analysis.consistency import ColorCast
 
     def fake_cast(model, cameras, images, masks, resolution):
-        return ColourCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]), 100, 0.0,
+        return ColorCast(np.array([[1.0, 1.0, 1.0], [1.05, 1.0, 0.95], [1.0, 1.0, 1.0], [1.0, 1.0, 1.0]]), 100, 0.0,
                           np.full((4, 3), 0.5))
 
-    monkeypatch.setattr(phases, "colour_cast", fake_cast)
+    monkeypatch.setattr(phases, "color_cast", fake_cast)
     monkeypatch.setattr(phases, "input_silhouette_support", lambda datamanager: None)
     trainer = tiny_config("va-neus", tiny_scene, tmp_path / "run", steps=3).setup()
     trainer.train()
     assert trainer.model.field.current_phase == FUSION and not bool(trainer.model.field.skipped)
     record = json.loads((tmp_path / "run" / RESIDUALS_FILE).read_text())
     assert not record["consistent"]
-    assert record["colour_cast"]["consistent"] is False and record["colour_cast"]["threshold"] == 0.012
-    assert abs(record["colour_cast"]["worst_shift"] - 0.5 * 0.0496) < 1e-3
+    assert record["color_cast"]["consistent"] is False and record["color_cast"]["threshold"] == 0.012
+    assert abs(record["color_cast"]["worst_shift"] - 0.5 * 0.0496) < 1e-3
 
 
 @pytest.mark.parametrize("options,match", [
@@ -205,7 +205,7 @@ def test_a_colour_cast_alone_turns_the_adaptive_phases_on(tiny_scene, tmp_path, 
     ({"pretrain_fraction": 0.8, "branch_fraction": 0.5}, "sum to at most 1"),
     ({"attention_dim": 10, "attention_heads": 4}, "multiple"),
     ({"min_sample_weight": -1.0}, ">= 0"),
-    ({"consistent_colour_cast": -0.1}, ">= 0"),
+    ({"consistent_color_cast": -0.1}, ">= 0"),
 ])
 def test_bad_options_are_refused_with_a_message(options, match):
     with pytest.raises(ConfigError, match=match):
@@ -346,7 +346,7 @@ def test_the_wrapper_passes_only_named_queries_to_its_base(base, tiny_scene, tmp
 
 def test_the_regularizers_leave_the_shared_field_alone(tiny_scene, tmp_path):
     """L_entropy and L_consistency train the branches and the attention only (their gradient on the shared
-    field can dissolve the surface at phase 3's start); the colour loss still trains the shared field."""
+    field can dissolve the surface at phase 3's start); the color loss still trains the shared field."""
     trainer = _trainer("va-neus", tiny_scene, tmp_path / "run")
     model, field = trainer.model, trainer.model.field
     for _ in range(6):
@@ -367,19 +367,19 @@ def test_the_regularizers_leave_the_shared_field_alone(tiny_scene, tmp_path):
         assert not reaches, name
         if name == "consistency":
             assert any(g is not None and bool(g.abs().sum() > 0) for g in to_adaptive)
-    # the colour loss still trains the shared field through the same fused samples
+    # the color loss still trains the shared field through the same fused samples
     to_shared = torch.autograd.grad(losses["rgb"], shared, retain_graph=True, allow_unused=True)
     assert any(g is not None and bool(g.abs().sum() > 0) for g in to_shared)
 
 
 @pytest.mark.parametrize("method", ["va-neus", "va-ngp"])
-def test_the_shared_colour_loss_renders_the_shared_path_of_the_training_rays(method, tiny_scene, tmp_path):
-    """``shared_colour_weight``: in phases 2-3 the shared path's render of the same training rays (f_shared
-    decoded, what novel views use) meets the inputs too. Phase 1 has no such term (its colour already is
-    the shared one); off, the loss is the paper's. The term equals the model's colour loss on a render of
+def test_the_shared_color_loss_renders_the_shared_path_of_the_training_rays(method, tiny_scene, tmp_path):
+    """``shared_color_weight``: in phases 2-3 the shared path's render of the same training rays (f_shared
+    decoded, what novel views use) meets the inputs too. Phase 1 has no such term (its color already is
+    the shared one); off, the loss is the paper's. The term equals the model's color loss on a render of
     the batch with the branches switched off, times its weight."""
     weight = 0.5
-    trainer = _trainer(method, tiny_scene, tmp_path / "run", **{"pipeline.model.field.shared_colour_weight": weight})
+    trainer = _trainer(method, tiny_scene, tmp_path / "run", **{"pipeline.model.field.shared_color_weight": weight})
     model, field = trainer.model, trainer.model.field
     ray_bundle, batch = trainer.pipeline.datamanager.next_train(6)
     assert "shared_rgb" not in model.get_loss_dict(model.get_outputs(ray_bundle), batch)  # phase 1
@@ -397,11 +397,11 @@ def test_the_shared_colour_loss_renders_the_shared_path_of_the_training_rays(met
         plain = model.get_outputs(ray_bundle)["rgb"]
         field.set_phase(phase)
         assert torch.allclose(outputs["rgb_shared"], plain, atol=1e-5)
-        expected = weight * model.colour_loss(plain, batch["rgb"])
+        expected = weight * model.color_loss(plain, batch["rgb"])
         assert torch.allclose(losses["shared_rgb"], expected, atol=1e-6)
         shared = list(field.base.parameters())
         grads = torch.autograd.grad(losses["shared_rgb"], shared, allow_unused=True)
         assert any(g is not None and bool(g.abs().sum() > 0) for g in grads)
-    off = _trainer(method, tiny_scene, tmp_path / "off", **{"pipeline.model.field.shared_colour_weight": 0})
+    off = _trainer(method, tiny_scene, tmp_path / "off", **{"pipeline.model.field.shared_color_weight": 0})
     off.model.field.set_phase(FUSION)
     assert "shared_rgb" not in off.model.get_loss_dict(off.model.get_outputs(ray_bundle), batch)

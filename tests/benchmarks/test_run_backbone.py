@@ -53,7 +53,7 @@ def test_report_has_level_tables_and_budget_check(smoke_out):
     (["--variants", "nope"], "unknown method"),
     (["--variants", "neus:nope"], "has no preset"),
     (["--budgets", "0"], "positive"),
-    (["--kinds", "appearance;colour"], "unknown inconsistency kind"),
+    (["--kinds", "appearance;color"], "unknown inconsistency kind"),
     (["--variants", "neus@crossings_weight"], "KEY=VALUE"),
 ])
 def test_bad_flags(backbone, tmp_path, flags, message, capsys):

@@ -72,7 +72,7 @@ def test_a_variant_made_with_set_needs_a_label_and_reaches_the_run(gen, tmp_path
     (data / "a.png").write_bytes(b"")
     with pytest.raises(SystemExit):  # argparse's error: one line, exit 2
         gen.main(["--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out"),
-                  "--set", "pipeline.model.field.shared_colour_weight=1"])
+                  "--set", "pipeline.model.field.shared_color_weight=1"])
     with pytest.raises(SystemExit):
         gen.main(["--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--label", "a b"])
     seen = []
@@ -84,8 +84,8 @@ def test_a_variant_made_with_set_needs_a_label_and_reaches_the_run(gen, tmp_path
     monkeypatch.setattr(gen, "run_one", fake_run)
     with pytest.raises(SystemExit):
         gen.main(["--data-root", str(tmp_path / "data"), "--out", str(tmp_path / "out"), "--methods", "va-neus",
-                  "--set", "pipeline.model.field.shared_colour_weight=1", "--label", "shared"])
-    assert seen == [("va-neus", "a-va-neus-shared", ["pipeline.model.field.shared_colour_weight=1"])]
+                  "--set", "pipeline.model.field.shared_color_weight=1", "--label", "shared"])
+    assert seen == [("va-neus", "a-va-neus-shared", ["pipeline.model.field.shared_color_weight=1"])]
 
 
 def test_the_mesh_figure_keeps_a_column_for_a_run_without_a_mesh(gen, tiny_scene, tmp_path):

@@ -24,7 +24,7 @@ def test_scores_field_and_both_fusions_and_resumes(run, tmp_path, capsys):
         assert set(record[part]) >= {"psnr", "ssim", "lpips"}
     assert "mean-harmonised" not in record
     assert record["robust"]["texels_seen"] > 0 and "bake" in record["bake_6_views_seconds"]
-    assert "view_colour_gain" in record["robust"] and "view_colour_gain" not in record["robust-plain"]
+    assert "view_color_gain" in record["robust"] and "view_color_gain" not in record["robust-plain"]
     assert (run / "texture_bake.png").exists()
     table = capsys.readouterr().out
     assert "| median |" in table and run.name in table

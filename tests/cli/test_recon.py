@@ -27,7 +27,7 @@ def test_one_command_writes_a_textured_mesh_from_every_view(strip, tmp_path, cap
     assert recon.main([str(strip), "--out", str(out), "--steps", "3", *TINY]) == 0
     printed = capsys.readouterr().out
     summary = json.loads((out / "summary.json").read_text())
-    assert summary["views"] == 16 and summary["masks"] == "colour key" and summary["steps"] == 3
+    assert summary["views"] == 16 and summary["masks"] == "color key" and summary["steps"] == 3
     assert str(out / "mesh.glb") in printed and str(out / "turntable" / "turntable.mp4") in printed
     scene = trimesh.load(out / "mesh.glb")
     geometry = next(iter(scene.geometry.values()))
@@ -79,7 +79,7 @@ def test_help_lists_presets_and_next_step():
     assert "--preset fast" in text and "--preset accurate" in text
 
 
-def test_opaque_alpha_falls_back_to_the_colour_key(tmp_path):
+def test_opaque_alpha_falls_back_to_the_color_key(tmp_path):
     from va_plugin.data.images import read_image, write_image
 
     path = write_syncdreamer_strip(tmp_path / "rgb.png", tile=32)
@@ -88,7 +88,7 @@ def test_opaque_alpha_falls_back_to_the_colour_key(tmp_path):
     parser = resolve_dataparser(tmp_path / "rgba.png").setup()
     with pytest.warns(UserWarning, match="alpha channel is opaque everywhere"):
         train_views = parser.get_outputs("train")
-    assert train_views.metadata["mask_source"] == "colour key"
+    assert train_views.metadata["mask_source"] == "color key"
     assert 0.02 < float(train_views.masks.mean()) < 0.5  # the object, not the whole view
 
 

@@ -110,7 +110,7 @@ def test_syncdreamer_strip_reads_back(syncdreamer_strip):
     assert train.metadata["view_ids"] == [0, 2, 4, 6, 8, 10, 12, 14] and len(test) == 8
     assert torch.allclose(train.cameras.c2w, cameras.c2w[::2], atol=1e-6)
     assert float(train.cameras.fx[0]) == pytest.approx(280.0 * TILE / 256) and train.cameras.pixel_offset == 0.5
-    assert train.metadata["mask_source"] == "colour key" and train.scene_radius == pytest.approx(0.9)
+    assert train.metadata["mask_source"] == "color key" and train.scene_radius == pytest.approx(0.9)
     for k, view in enumerate(train.metadata["view_ids"]):
         assert matches_alpha(train.masks[k], alpha[view])
     # the rig is trusted: the hull of the masks sits where the object is, inside the unit box
@@ -170,7 +170,7 @@ def test_wonder3d_folder_is_orthographic_with_world_normals(wonder3d_folder):
 
 
 @pytest.mark.filterwarnings("ignore:.*agree poorly")  # made-up square masks fit no rig
-def test_mask_folder_overrides_the_colour_key(syncdreamer_strip, tmp_path):
+def test_mask_folder_overrides_the_color_key(syncdreamer_strip, tmp_path):
     path, _, alpha = syncdreamer_strip
     masks = tmp_path / "masks"
     for k in range(16):
@@ -210,7 +210,7 @@ def test_mask_picture_lands_in_the_run_folder(syncdreamer_strip, tmp_path, capsy
     assert train_cli.main(argv) == 0
     picture = read_image(run / "masks.png")
     assert picture.shape[:2] == (2 * TILE, 4 * TILE)
-    assert "syncdreamer input: 4 training views, masks from the colour key" in capsys.readouterr().err
+    assert "syncdreamer input: 4 training views, masks from the color key" in capsys.readouterr().err
 
 
 # -- bad input ---------------------------------------------------------------------------------------
@@ -249,7 +249,7 @@ def test_no_foreground_and_no_background_are_refused(tmp_path):
         parse(blank)
     noise = tmp_path / "noise.png"
     write_image(noise, np.random.default_rng(0).random((TILE, 16 * TILE, 3)).astype(np.float32))
-    with pytest.raises(DataError, match="no flat background colour"):
+    with pytest.raises(DataError, match="no flat background color"):
         parse(noise)
 
 
@@ -298,7 +298,7 @@ def test_real_zero123pp_grid_fits_the_v12_rig(name):
     train, _ = parse(GENERATED / "zero123pp" / f"{name}.png")
     ious = train.metadata["silhouette_iou"]
     assert np.mean(ious) > 0.88 and min(ious) > 0.85
-    # InstantMesh's outputs are off-white, not gray: the key estimates the colour from the border
+    # InstantMesh's outputs are off-white, not gray: the key estimates the color from the border
     assert 0.15 < float(train.masks.mean()) < 0.4
     if name == "fox":  # a fox is not symmetric: the v1.1 rig explains it clearly worse
         older, _ = parse(GENERATED / "zero123pp" / f"{name}.png", rig="v1.1")

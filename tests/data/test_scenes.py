@@ -103,7 +103,7 @@ def _kind_scene(tmp_path, kind):
     return build(tmp_path / kind, kinds=kind)
 
 
-def test_appearance_changes_colour_only(tmp_path, level0):
+def test_appearance_changes_color_only(tmp_path, level0):
     scene = _kind_scene(tmp_path, "appearance")
     for i in PERTURBED:
         a, b = png(scene / f"images/train_{i:03d}.png"), png(scene / f"images/clean_{i:03d}.png")

@@ -48,7 +48,7 @@ def test_intrinsics_poses_and_alpha(tmp_path):
     # OpenGL -> OpenCV: the camera's z axis flips
     assert torch.allclose(out.cameras.c2w[0, :, 2], torch.tensor([0.0, 0.0, -1.0]))
     assert torch.allclose(out.cameras.centers[1], torch.tensor([0.0, 0.0, 3.0]))
-    # transparent pixels are composited on white, opaque ones keep their colour
+    # transparent pixels are composited on white, opaque ones keep their color
     assert torch.allclose(out.images[0, -1, 0], torch.ones(3), atol=1e-2)
     assert torch.allclose(out.images[0, 0, 0], torch.tensor([1.0, 0.0, 0.0]), atol=1e-2)
     assert out.masks[0, 0, 0, 0] == 1.0 and out.masks[0, -1, 0, 0] == 0.0

@@ -195,12 +195,12 @@ def test_fused_adam_matches_the_plain_update():
         assert torch.allclose(fused, plain, rtol=1e-5, atol=1e-6)
 
 
-def test_schedule_horizon_compresses_shorter_budgets_and_caps_longer_ones():
-    from va_plugin.engine.trainer import TrainerConfig, schedule_horizon
+def test_schedule_steps_compress_shorter_budgets_and_caps_longer_ones():
+    from va_plugin.engine.trainer import TrainerConfig, schedule_steps_of
 
-    assert schedule_horizon(TrainerConfig(max_steps=4000)) == 4000
-    assert schedule_horizon(TrainerConfig(max_steps=4000, schedule_steps=2000)) == 2000
-    assert schedule_horizon(TrainerConfig(max_steps=500, schedule_steps=2000)) == 500
+    assert schedule_steps_of(TrainerConfig(max_steps=4000)) == 4000
+    assert schedule_steps_of(TrainerConfig(max_steps=4000, schedule_steps=2000)) == 2000
+    assert schedule_steps_of(TrainerConfig(max_steps=500, schedule_steps=2000)) == 500
 
 
 def test_steps_past_the_schedule_continue_the_shorter_run_at_its_final_rates(tiny_scene, tmp_path):
@@ -212,11 +212,11 @@ def test_steps_past_the_schedule_continue_the_shorter_run_at_its_final_rates(tin
     seen = []
 
     def record_rates(step, attributes):
-        seen.append((step, attributes.horizon, [g["lr"] for g in longer.optimizer.param_groups]))
+        seen.append((step, attributes.schedule_steps, [g["lr"] for g in longer.optimizer.param_groups]))
 
     longer = tiny_config("neus", tiny_scene, tmp_path / "long", steps=6, checkpoint_every=3,
                          **{"scheduler.warmup_steps": 1, "schedule_steps": 3}).setup()
-    assert longer.model.scene.max_steps == 3
+    assert longer.model.scene.schedule_steps == 3
     longer.callbacks.append(TrainingCallback(record_rates, AFTER_STEP))
     checkpoint_at_3 = {}
 

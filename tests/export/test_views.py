@@ -15,8 +15,8 @@ def test_bilinear_samples_pixel_centres_at_integers():
     assert np.allclose(bilinear(image, np.float32([0, 1.5, 9]), np.float32([0, 1, 2])), [0, 5.5, 11])
 
 
-def test_an_occluded_texel_takes_no_colour_from_the_view_that_cannot_see_it():
-    # a small box hides the middle of a big face from camera 0 only; the camera 0 colour there is red
+def test_an_occluded_texel_takes_no_color_from_the_view_that_cannot_see_it():
+    # a small box hides the middle of a big face from camera 0 only; the camera 0 color there is red
     big = trimesh.creation.box(extents=(0.2, 1.0, 1.0))  # face at x = +0.1 faces camera 0 (on +x)
     blocker = trimesh.creation.box(extents=(0.1, 0.3, 0.3))
     blocker.apply_translation([0.6, 0, 0])
@@ -49,7 +49,7 @@ def test_inconsistency_maps_weight_a_view_down_where_it_disagrees():
     shared = (plain.weight_maps[0] > 0.05) & (plain.weight_maps[1:].sum(0) > 0.05)  # view 0 and others see
     assert shared.sum() > 50
     assert flagged.weight_maps[0][shared].max() < 1e-3
-    # where view 0 is the only one to see a texel it still gives the colour (nothing better is at hand)
+    # where view 0 is the only one to see a texel it still gives the color (nothing better is at hand)
     alone = (plain.weight_maps[0] > 0) & (plain.weight_maps[1:].sum(0) == 0)
     assert alone.sum() > 10
     assert np.allclose(flagged.weight_maps[0][alone], 1.0)

@@ -1,4 +1,4 @@
-"""Hand-made texture cases shared by the export tests: a cube whose colours are known everywhere, seen by
+"""Hand-made texture cases shared by the export tests: a cube whose colors are known everywhere, seen by
 known cameras."""
 
 import numpy as np
@@ -13,8 +13,8 @@ RES = 48
 TEXTURE = 64
 
 
-def smooth_colour(points: np.ndarray) -> np.ndarray:
-    """A colour that varies slowly over the cube (so bilinear sampling errors stay small)."""
+def smooth_color(points: np.ndarray) -> np.ndarray:
+    """A color that varies slowly over the cube (so bilinear sampling errors stay small)."""
     return np.clip(0.5 + 0.8 * points[:, [0, 1, 2]] * np.array([1.0, -1.0, 1.0]), 0.0, 1.0).astype(np.float32)
 
 
@@ -22,9 +22,9 @@ def cube(size: float = 0.6) -> trimesh.Trimesh:
     return trimesh.creation.box(extents=(size, size, size))
 
 
-def cube_views(mesh, azimuths, elevations, colour=smooth_colour):
+def cube_views(mesh, azimuths, elevations, color=smooth_color):
     cameras = orbit_cameras(azimuths, elevations, resolution=RES, pixel_offset=0.5)
-    renderer = UnlitMeshRenderer(mesh, lambda hits: colour(hits.points))
+    renderer = UnlitMeshRenderer(mesh, lambda hits: color(hits.points))
     images, masks = [], []
     for k in range(len(cameras)):
         rgba = renderer.render(cameras, k, supersample=3)
@@ -34,7 +34,7 @@ def cube_views(mesh, azimuths, elevations, colour=smooth_colour):
 
 
 def texel_truth(textured):
-    """Per covered texel: its known colour, from where it lies on the surface."""
+    """Per covered texel: its known color, from where it lies on the surface."""
     face, bary = rasterize_uv(textured.uv, textured.faces, TEXTURE)
     covered = face >= 0
     corners = textured.faces[face[covered]]

@@ -36,7 +36,7 @@ def _reference(field, x):
 
 
 def _loss(sdf, features, gradient):
-    """Every way the model uses the gradient: eikonal, normals (colour input, cosine term), plus the outputs."""
+    """Every way the model uses the gradient: eikonal, normals (color input, cosine term), plus the outputs."""
     normals = nn.functional.normalize(gradient, dim=-1, eps=1e-6)
     weights = torch.linspace(-1.0, 1.0, features.shape[-1], dtype=features.dtype)
     return (sdf.square().mean() + (features * weights).mean() + ((gradient.norm(dim=-1) - 1) ** 2).mean()

@@ -130,7 +130,7 @@ def test_levels_open_coarse_to_fine():
     assert HashSDFFieldConfig(coarse_to_fine_fraction=0.0).setup().encoding.n_active_levels == 12
 
 
-def test_colour_inputs_follow_the_config():
+def test_color_inputs_follow_the_config():
     x = _points(5)
     normals = torch.nn.functional.normalize(x, dim=-1)
     for freqs, use_normal in [(-1, True), (0, False), (2, True)]:

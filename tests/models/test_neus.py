@@ -217,7 +217,7 @@ def test_inv_s_floor_rises_from_its_start_and_lifts_the_learned_value(tiny_scene
     trainer = _trainer(tiny_scene, tmp_path, **{"pipeline.model.inv_s_floor": 500.0,
                                                 "pipeline.model.inv_s_floor_start": 0.5,
                                                 "max_steps": 8, "schedule_steps": 8})
-    model, steps = trainer.model, trainer.model.scene.max_steps
+    model, steps = trainer.model, trainer.model.scene.schedule_steps
     assert steps == 8
     assert model.inv_s_floor(0) == 0.0 and model.inv_s_floor(steps // 2) == 0.0
     assert model.inv_s_floor(steps) == pytest.approx(500.0) and model.inv_s_floor(10 * steps) == pytest.approx(500.0)

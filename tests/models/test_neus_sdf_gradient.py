@@ -29,7 +29,7 @@ def test_one_batch_matches_the_double_backward_reference(method, tiny_scene, tmp
     ref_out, ref_loss, ref_grads = _outputs_and_grads(model, rays, batch, "autograd")
     out, loss, grads = _outputs_and_grads(model, rays, batch, "analytic")
     # float32 throughout: the paths differ by summation order only (see tests/fields/test_analytic_sdf_gradient.py);
-    # measured here: 4e-7 on the gradients, 1e-7 on the colours, 5e-7 relative on the parameter gradients
+    # measured here: 4e-7 on the gradients, 1e-7 on the colors, 5e-7 relative on the parameter gradients
     assert torch.allclose(out["gradients"], ref_out["gradients"], rtol=1e-5, atol=1e-5)
     for key in ("rgb", "accumulation", "depth", "normal"):
         assert torch.allclose(out[key], ref_out[key], atol=1e-5), key
@@ -81,9 +81,8 @@ def test_auto_picks_the_analytic_path_where_the_field_supports_it(tiny_scene, tm
     assert model.config.sdf_gradient == "auto" and model.sdf_gradient == "analytic"
     model = tiny_config("va-neus", tiny_scene, tmp_path / "b").setup().model
     assert model.sdf_gradient == "analytic"
-    # an activation the hand-written chain rule does not cover falls back to autograd
-    from va_plugin.models.neus import _supports_analytic_gradient
-
+    # an activation the hand-written chain rule does not cover: the field no longer declares the analytic
+    # gradient, so "auto" falls back to autograd and "analytic" is refused
+    assert model.field.analytic_sdf_gradient
     model.field.base.sdf_net.activation = torch.nn.Tanh()
-    assert not _supports_analytic_gradient(model.field)
-    assert not _supports_analytic_gradient(torch.nn.Linear(3, 1))  # no geometry_and_gradient at all
+    assert not model.field.analytic_sdf_gradient

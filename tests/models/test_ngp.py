@@ -68,7 +68,7 @@ def test_empty_cells_are_skipped_before_the_field_runs(tiny_scene, tmp_path):
     assert 0 < spy.points < n_rays * n_samples
     evaluated = torch.cat(spy.positions)
     assert grid.occupied(evaluated).all() and (evaluated[:, 0] < 1e-6).all()
-    # each kept sample was evaluated once, and colour saw the same points
+    # each kept sample was evaluated once, and color saw the same points
     assert spy.color_calls[0][0][0] == spy.points == outputs["weights"].shape[0]
     assert model.samples_per_ray == pytest.approx(spy.points / n_rays)
 

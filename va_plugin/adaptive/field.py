@@ -4,7 +4,7 @@ The wrapper sits between the base field's ``color_features`` (f_shared) and ``de
 
     f_shared --(branch i)--> f_i --(self-attention over i = 1..n)--> f_fused,i --decode--> RGB
 
-Training view i renders with f_fused,i; novel views, evaluation and mesh colours with f_shared (the
+Training view i renders with f_fused,i; novel views, evaluation and mesh colors with f_shared (the
 *canonical* feature). Geometry is the base field's. A phase flag (1 pre-training, 2 branches,
 3 fusion) is set by a trainer callback (``va_plugin.adaptive.phases``).
 """
@@ -60,19 +60,19 @@ class ViewAdaptiveFieldConfig(FieldConfig):
     """Learning-rate factor of the shared field in phases 2 and 3 (the paper: 0.1)."""
     min_sample_weight: float = 1e-3
     """Samples whose rendering weight is at most this skip the branches and the attention and keep the
-    shared colour (0: every sample takes the adaptive path)."""
-    shared_colour_weight: float = 0.0
-    """Weight of a second colour loss in phases 2-3: the shared path's render of the training rays against
+    shared color (0: every sample takes the adaptive path)."""
+    shared_color_weight: float = 0.0
+    """Weight of a second color loss in phases 2-3: the shared path's render of the training rays against
     the inputs. 0: the paper's loss alone."""
     fused_samples_per_ray: int = 1
     """While fusion trains, only the k heaviest visible samples of each training ray are fused; its other
     visible samples take their own view's branch (0: every visible sample is fused)."""
     skip_consistent_scenes: bool = True
-    """After pre-training, test whether the inputs agree (silhouette support and colour cast); when they
+    """After pre-training, test whether the inputs agree (silhouette support and color cast); when they
     do, stay in phase 1 (the adaptive phases are skipped)."""
-    consistent_colour_cast: float = 0.012
-    """Threshold of the colour-cast test: the largest chromatic shift between a view and view 0 on the
-    shared surface, in colour units (``ColourCast.worst_shift``); 0 turns the test off."""
+    consistent_color_cast: float = 0.012
+    """Threshold of the color-cast test: the largest chromatic shift between a view and view 0 on the
+    shared surface, in color units (``ColorCast.worst_shift``); 0 turns the test off."""
     consistency_test: str = "va_plugin.analysis.consistency:decide_skip"
     """With ``skip_consistent_scenes``: the test that decides, as ``module:function`` taking the field, the
     callback's attributes and the step, and returning True to skip the adaptive phases."""
@@ -94,9 +94,9 @@ class ViewAdaptiveFieldConfig(FieldConfig):
             raise ConfigError("pretrain_fraction and branch_fraction must be >= 0 and sum to at most 1, got "
                               f"{self.pretrain_fraction} and {self.branch_fraction}")
         if min(self.entropy_weight, self.consistency_weight, self.shared_lr_scale, self.min_sample_weight,
-               self.diagnostics_scale, self.fused_samples_per_ray, self.consistent_colour_cast) < 0:
+               self.diagnostics_scale, self.fused_samples_per_ray, self.consistent_color_cast) < 0:
             raise ConfigError("entropy_weight, consistency_weight, shared_lr_scale, min_sample_weight, "
-                              "diagnostics_scale, fused_samples_per_ray and consistent_colour_cast must be >= 0")
+                              "diagnostics_scale, fused_samples_per_ray and consistent_color_cast must be >= 0")
         if self.branch_layers < 1 or self.branch_width < 1 or self.attention_heads < 1:
             raise ConfigError("branch_layers, branch_width and attention_heads must be positive")
         if self.attention_dim % self.attention_heads:
@@ -106,6 +106,8 @@ class ViewAdaptiveFieldConfig(FieldConfig):
 
 class ViewAdaptiveField(Field):
     """A base field plus n per-view branches and a self-attention fusion module."""
+
+    has_view_branches = True
 
     def __init__(self, config: ViewAdaptiveFieldConfig, num_train_views: int) -> None:
         super().__init__()
@@ -127,10 +129,10 @@ class ViewAdaptiveField(Field):
             self.attention = ViewAttention(d, config.attention_dim, config.attention_heads) \
                 if config.fusion else None
         # persistent so a loaded checkpoint renders in the phase it finished in
-        self.also_canonical = False  # set by the diagnostics: colour() also returns ``rgb_canonical`` (see there)
+        self.also_canonical = False  # set by the diagnostics: color() also returns ``rgb_canonical`` (see there)
         self.register_buffer("phase", torch.tensor(PRETRAIN))
         self.register_buffer("skipped", torch.tensor(False))
-        self._phase = PRETRAIN  # host copy of the buffer: no device sync per colour query
+        self._phase = PRETRAIN  # host copy of the buffer: no device sync per color query
         self.register_load_state_dict_post_hook(lambda module, _: module._refresh_phase())
         self.register_buffer("attention_sum", torch.zeros(num_train_views, num_train_views))
         self.register_buffer("attention_mass", torch.zeros(()))
@@ -138,8 +140,8 @@ class ViewAdaptiveField(Field):
         self.fused_share = 0.0  # share of the last training batch's samples that took the fused path (phase 3)
 
     # -- phases (set by the trainer's callback) ---------------------------------------------------
-    def update_step(self, step: int, max_steps: int) -> None:
-        self.base.update_step(step, max_steps)
+    def update_step(self, step: int, schedule_steps: int) -> None:
+        self.base.update_step(step, schedule_steps)
 
     def set_phase(self, phase: int) -> None:
         self.phase.fill_(int(phase))
@@ -168,7 +170,18 @@ class ViewAdaptiveField(Field):
     def decode_color(self, features: torch.Tensor) -> torch.Tensor:
         return self.base.decode_color(features)
 
-    BASE_PASSTHROUGH = frozenset({"geometry_and_gradient", "sdf", "density", "bound"})
+    @property
+    def analytic_sdf_gradient(self) -> bool:
+        return self.base.analytic_sdf_gradient
+
+    @property
+    def bound(self) -> float | None:
+        return self.base.bound
+
+    def geometry_and_gradient(self, positions: torch.Tensor):
+        return self.base.geometry_and_gradient(positions)
+
+    BASE_PASSTHROUGH = frozenset({"sdf", "density"})
     """The base field's backbone-specific queries the wrapper passes on (when the base field has them)."""
 
     def __getattr__(self, name: str):
@@ -188,7 +201,7 @@ class ViewAdaptiveField(Field):
 
         Given rendering ``weights``, only samples heavier than ``min_sample_weight`` take the adaptive
         path; with ``ray_indices``, ``fused_samples_per_ray`` fuses only each ray's heaviest samples.
-        With ``also_canonical`` set, ``rgb_canonical`` (the same samples' canonical colour) comes along."""
+        With ``also_canonical`` set, ``rgb_canonical`` (the same samples' canonical color) comes along."""
         shared = self.base.color_features(positions, directions, normals, geo_features)
         mode = self._mode()
         if not mode.branches:
@@ -216,22 +229,22 @@ class ViewAdaptiveField(Field):
         return ColorMode(branches=self.branches_active(), fusion=self.fusion_active(), training=self.training,
                          also_canonical=self.also_canonical, min_sample_weight=cfg.min_sample_weight,
                          fused_samples_per_ray=cfg.fused_samples_per_ray if self.fusion_active() else 0,
-                         shared_colour=self.training and cfg.shared_colour_weight > 0)
+                         shared_color=self.training and cfg.shared_color_weight > 0)
 
     def _every_sample(self, flat: torch.Tensor, views: torch.Tensor, mode: ColorMode) -> dict[str, torch.Tensor]:
         """Every sample ``[S, D]`` takes the adaptive path (no rendering weights, or no culling)."""
         out = self._adaptive(flat, views, None, mode)
-        if mode.also_canonical or mode.shared_colour:
+        if mode.also_canonical or mode.shared_color:
             shared_rgb = self.base.decode_color(flat)
             if mode.also_canonical:
                 out["rgb_canonical"] = shared_rgb
-            if mode.shared_colour:
+            if mode.shared_color:
                 out["rgb_shared"] = shared_rgb
         return out
 
     def _routed(self, flat: torch.Tensor, views: torch.Tensor, weights: torch.Tensor, routes: SampleRoutes,
                 mode: ColorMode) -> dict[str, torch.Tensor]:
-        """The shared colour everywhere, overwritten where ``routes`` send a sample down the adaptive path
+        """The shared color everywhere, overwritten where ``routes`` send a sample down the adaptive path
         (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``)."""
         index = routes.adaptive
         sub = self._adaptive(flat[index], views[index], weights[index], mode)
@@ -241,10 +254,10 @@ class ViewAdaptiveField(Field):
             own = routes.own_only
             rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(flat[own], views[own])))
         out = {"rgb": rgb}
-        if mode.shared_colour:
+        if mode.shared_color:
             out["rgb_shared"] = base_rgb
         if mode.also_canonical:
-            out["rgb_canonical"] = base_rgb  # the shared colour is the canonical one
+            out["rgb_canonical"] = base_rgb  # the shared color is the canonical one
         for key in ("va_attention", "va_attention_weights"):
             if key in sub:
                 out[key] = sub.pop(key)
@@ -287,12 +300,12 @@ class ViewAdaptiveField(Field):
 
     # -- losses and diagnostics -------------------------------------------------------------------
     def extra_losses(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor] | None = None,
-                     colour_loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+                     color_loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
                      ) -> dict[str, torch.Tensor]:
         """The weighted regularizers of eq. 14, averaged over samples by their rendering weights; the
         attention of the batch (``va_attention``) joins the running attention matrix. With
-        ``shared_colour_weight`` and the model's ``colour_loss``, the shared path's render of the batch
-        (``rgb_shared``) against the batch's colours, as the loss ``shared_rgb``."""
+        ``shared_color_weight`` and the model's ``color_loss``, the shared path's render of the batch
+        (``rgb_shared``) against the batch's colors, as the loss ``shared_rgb``."""
         cfg = self.config
         weights = outputs.get("weights")
         if weights is not None and "va_evaluated" in outputs:  # only where the regularizers were evaluated
@@ -304,8 +317,8 @@ class ViewAdaptiveField(Field):
             losses["consistency"] = cfg.consistency_weight * weighted_mean(outputs["va_consistency"], weights)
         if "va_attention" in outputs:
             self._accumulate_attention(outputs["va_attention"], outputs.get("va_attention_weights"), weights)
-        if "rgb_shared" in outputs and batch is not None and colour_loss is not None:
-            losses["shared_rgb"] = cfg.shared_colour_weight * colour_loss(outputs["rgb_shared"], batch["rgb"])
+        if "rgb_shared" in outputs and batch is not None and color_loss is not None:
+            losses["shared_rgb"] = cfg.shared_color_weight * color_loss(outputs["rgb_shared"], batch["rgb"])
         return losses
 
     @torch.no_grad()
@@ -352,20 +365,20 @@ class ViewAdaptiveField(Field):
 
 @dataclass(frozen=True)
 class ColorMode:
-    """The switches of one colour query, read once from the field's phase, config and flags."""
+    """The switches of one color query, read once from the field's phase, config and flags."""
 
     branches: bool  # the per-view branches are on (phase 2 or 3)
     fusion: bool  # the attention fusion is on (phase 3)
     training: bool  # the regularizers and the attention record are wanted
     also_canonical: bool  # ``rgb_canonical`` is wanted beside ``rgb`` (diagnostics)
-    min_sample_weight: float  # samples at most this heavy keep the shared colour
+    min_sample_weight: float  # samples at most this heavy keep the shared color
     fused_samples_per_ray: int  # while fusion is on (0: every visible sample; always 0 without fusion)
-    shared_colour: bool = False  # ``rgb_shared`` (the shared path's colour) is wanted
+    shared_color: bool = False  # ``rgb_shared`` (the shared path's color) is wanted
 
 
 @dataclass(frozen=True)
 class SampleRoutes:
-    """Which flat samples take which colour path (the others keep the shared colour)."""
+    """Which flat samples take which color path (the others keep the shared color)."""
 
     adaptive: torch.Tensor  # [A] indices of the samples on the adaptive path (fused, in the fusion phase)
     own_only: torch.Tensor | None  # [B] visible samples on their own view's branch alone, or None

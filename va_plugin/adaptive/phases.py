@@ -25,11 +25,11 @@ PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branche
 
 
 
-def phase_at(step: int, max_steps: int, pretrain_fraction: float, branch_fraction: float) -> int:
-    """Phase (1, 2 or 3) of 0-based ``step`` in a budget of ``max_steps``."""
-    if step < round(pretrain_fraction * max_steps):
+def phase_at(step: int, schedule_steps: int, pretrain_fraction: float, branch_fraction: float) -> int:
+    """Phase (1, 2 or 3) of 0-based ``step`` when the schedules end at ``schedule_steps``."""
+    if step < round(pretrain_fraction * schedule_steps):
         return PRETRAIN
-    if step < round((pretrain_fraction + branch_fraction) * max_steps):
+    if step < round((pretrain_fraction + branch_fraction) * schedule_steps):
         return BRANCHES
     return FUSION
 
@@ -40,7 +40,7 @@ def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
     cfg = field.config
 
     def switch(step: int, attributes: TrainingCallbackAttributes) -> dict[str, float]:
-        wanted = phase_at(step, attributes.horizon, cfg.pretrain_fraction, cfg.branch_fraction)
+        wanted = phase_at(step, attributes.schedule_steps, cfg.pretrain_fraction, cfg.branch_fraction)
         if (field.branches is None or bool(field.skipped)
                 or (wanted > PRETRAIN and field.current_phase == PRETRAIN and cfg.skip_consistent_scenes
                     and resolve_reference(cfg.consistency_test, "consistency_test")(field, attributes, step))):

@@ -2,7 +2,7 @@
 
 :func:`silhouette_support`: with consistent views, every foreground pixel's ray holds a point that all
 other masks contain; per view, the share of foreground pixels whose ray holds none ("unsupported").
-It needs no training. :func:`colour_cast`: per-view colour gains that make the views agree on the
+It needs no training. :func:`color_cast`: per-view color gains that make the views agree on the
 shared surface. :func:`decide_skip` runs both on a run at the end of its pre-training, records them with
 the per-view residuals of the shared field (:func:`view_residuals`, which do not vote) in the run folder
 and says whether to skip the adaptive phases.
@@ -111,13 +111,13 @@ def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: floa
 
 
 @dataclass
-class ColourCast:
-    """Per-view colour gains that make the training views agree on the shared surface (view 0 fixed at 1)."""
+class ColorCast:
+    """Per-view color gains that make the training views agree on the shared surface (view 0 fixed at 1)."""
 
     gains: np.ndarray  # [n, 3]
     points: int  # surface points the fit used (seen by two views)
     seconds: float
-    levels: np.ndarray | None = None  # [n, 3] each view's mean colour where another view sees too
+    levels: np.ndarray | None = None  # [n, 3] each view's mean color where another view sees too
 
     @property
     def log_gains(self) -> np.ndarray:
@@ -137,7 +137,7 @@ class ColourCast:
 
     @property
     def worst_shift(self) -> float:
-        """The largest chromatic deviation in colour units: :attr:`chroma` times the view's mean level of
+        """The largest chromatic deviation in color units: :attr:`chroma` times the view's mean level of
         the channel, so a dark channel's ill-defined gain counts for little."""
         if not self.gains.size or self.levels is None:
             return self.worst
@@ -149,16 +149,16 @@ class ColourCast:
         return float(np.max(np.abs(self.log_gains.mean(1)))) if self.gains.size else 0.0
 
     def as_dict(self) -> dict:
-        return {"test": "colour_cast", "worst_chroma": round(self.worst, 5), "worst_shift": round(self.worst_shift, 5),
+        return {"test": "color_cast", "worst_chroma": round(self.worst, 5), "worst_shift": round(self.worst_shift, 5),
                 "worst_brightness": round(self.brightness, 5), "points": self.points,
                 "seconds": round(self.seconds, 2), "gains": np.round(self.gains, 4).tolist(),
                 "levels": None if self.levels is None else np.round(self.levels, 4).tolist()}
 
 
 @torch.no_grad()
-def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: np.ndarray | None = None,
-                resolution: int = 64, max_gain: float = float("inf")) -> ColourCast:
-    """How far apart the views' colours are on the shared surface: the per-view gains of
+def color_cast(model, cameras: Cameras, images: np.ndarray, masks: np.ndarray | None = None,
+                resolution: int = 64, max_gain: float = float("inf")) -> ColorCast:
+    """How far apart the views' colors are on the shared surface: the per-view gains of
     :func:`va_plugin.export.fusion.harmonise` on the vertices of a ``resolution``^3 mesh of ``model``
     projected into every view (``images [n, H, W, 3]`` composited, ``masks [n, H, W]`` bool or None).
     Raises VAError when the model has no surface."""
@@ -171,18 +171,18 @@ def colour_cast(model, cameras: Cameras, images: np.ndarray, masks: np.ndarray |
     faces = np.asarray(mesh.faces, np.int64)
     normals = smooth_vertex_normals(vertices, faces)
     views = Views(cameras.to(torch.device("cpu")), images, masks)
-    colours, weights, _ = view_samples(vertices, faces, vertices, normals, views)
-    gains = harmonise(colours, weights, max_gain=max_gain)
+    colors, weights, _ = view_samples(vertices, faces, vertices, normals, views)
+    gains = harmonise(colors, weights, max_gain=max_gain)
     seen = weights > 0
     shared = seen.sum(1) >= 2
     w = np.where(seen & shared[:, None], weights, 0.0)
-    levels = np.einsum("mn,mnc->nc", w, colours) / np.maximum(w.sum(0), 1e-12)[:, None]
-    return ColourCast(gains, int(shared.sum()), time.perf_counter() - started, levels.astype(np.float32))
+    levels = np.einsum("mn,mnc->nc", w, colors) / np.maximum(w.sum(0), 1e-12)[:, None]
+    return ColorCast(gains, int(shared.sum()), time.perf_counter() - started, levels.astype(np.float32))
 
 
 RESIDUALS_FILE = "view_residuals.json"
-COLOUR_CAST_GRID = 96
-"""Marching-cubes grid of the surface the colour-cast test fits on."""
+COLOR_CAST_GRID = 96
+"""Marching-cubes grid of the surface the color-cast test fits on."""
 
 
 @torch.no_grad()
@@ -238,23 +238,23 @@ def residual_spread_db(residuals: list[dict[str, float]]) -> float:
 
 
 def decide_skip(field: ViewAdaptiveField, attributes: TrainingCallbackAttributes, step: int) -> bool:
-    """Measure the silhouette support and the colour cast, record them with the per-view residuals (which
+    """Measure the silhouette support and the color cast, record them with the per-view residuals (which
     do not vote), and say whether to skip the adaptive phases (when the inputs agree)."""
     residuals = view_residuals(attributes.pipeline)
     support = input_silhouette_support(attributes.pipeline.datamanager)
-    cast = input_colour_cast(attributes.pipeline, field.config.consistent_colour_cast)
-    colour_ok = cast is None or cast.worst_shift <= field.config.consistent_colour_cast
-    consistent = (support is None or support.consistent) and colour_ok
+    cast = input_color_cast(attributes.pipeline, field.config.consistent_color_cast)
+    color_ok = cast is None or cast.worst_shift <= field.config.consistent_color_cast
+    consistent = (support is None or support.consistent) and color_ok
     record = {"step": step, "consistent": consistent, "views": residuals,
               "silhouette_support": support.as_dict() if support is not None else None,
-              "colour_cast": None if cast is None else {**cast.as_dict(), "consistent": colour_ok,
-                                                        "threshold": field.config.consistent_colour_cast}}
+              "color_cast": None if cast is None else {**cast.as_dict(), "consistent": color_ok,
+                                                        "threshold": field.config.consistent_color_cast}}
     run_dir = Path(attributes.run_dir)
     run_dir.mkdir(parents=True, exist_ok=True)
     (run_dir / RESIDUALS_FILE).write_text(json.dumps(record, indent=2))
     spread = residual_spread_db(residuals)
     details = f", silhouettes {100 * support.worst:.2f}% unsupported" if support is not None else ""
-    details += f", colour cast {cast.worst_shift:.3f}" if cast is not None else ""
+    details += f", color cast {cast.worst_shift:.3f}" if cast is not None else ""
     if consistent:
         field.skipped.fill_(True)
         attributes.announce(step, f"inputs look consistent (per-view PSNR spread {spread:.2f} dB{details}): "
@@ -266,15 +266,15 @@ def decide_skip(field: ViewAdaptiveField, attributes: TrainingCallbackAttributes
     return consistent
 
 
-def input_colour_cast(pipeline, threshold: float):
-    """:func:`colour_cast` of the shared field on the training views; None when the test is off, with
+def input_color_cast(pipeline, threshold: float):
+    """:func:`color_cast` of the shared field on the training views; None when the test is off, with
     fewer than two views, or when no surface (point seen by two views) exists yet."""
 
     if threshold <= 0 or pipeline.datamanager.num_train_views < 2:
         return None
     views = run_views(pipeline)
     try:
-        cast = colour_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=COLOUR_CAST_GRID)
+        cast = color_cast(pipeline.model, views.cameras, views.images, views.masks, resolution=COLOR_CAST_GRID)
     except VAError:
         return None
     return cast if cast.points > 0 else None

@@ -18,13 +18,13 @@ from va_plugin.data.images import read_image, write_image
 from va_plugin.export.inconsistency import inconsistency_maps
 
 MIN_FULL_SCALE = 1e-3
-"""Smallest full scale of the inconsistency picture's colour map (0 .. the maps' 99.5th percentile)."""
+"""Smallest full scale of the inconsistency picture's color map (0 .. the maps' 99.5th percentile)."""
 ERROR_THRESHOLD = 0.05
 """A pixel counts as perturbed when the input differs from its clean render by more than this (mean RGB)."""
 
 
 def _colorize(values: np.ndarray, vmax: float) -> np.ndarray:
-    """Float RGB in [0, 1] of ``values / vmax`` under the inferno colour map."""
+    """Float RGB in [0, 1] of ``values / vmax`` under the inferno color map."""
     scaled = (np.clip(values / max(vmax, 1e-8), 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
     return cv2.applyColorMap(scaled, cv2.COLORMAP_INFERNO)[:, :, ::-1].astype(np.float32) / 255.0
 
@@ -135,7 +135,7 @@ def write_inconsistency(pipeline, run_dir: Path, scale: float = 0.5, scene_dir: 
 def write_diagnostics(pipeline, run_dir: Path, scale: float = 0.5, progress: bool = False) -> list[Path]:
     """Both pictures for a view-adaptive run (nothing for other fields); returns what was written."""
     field = pipeline.model.field
-    if not hasattr(field, "attention_matrix"):
+    if not field.has_view_branches:
         return []
     Path(run_dir).mkdir(parents=True, exist_ok=True)
     written = []
@@ -143,6 +143,6 @@ def write_diagnostics(pipeline, run_dir: Path, scale: float = 0.5, progress: boo
     if attention is not None:
         written.append(attention)
     if field.branches_active():
-        scene_dir = getattr(pipeline.datamanager.config.dataparser, "data", None)
+        scene_dir = pipeline.datamanager.config.dataparser.data
         written.append(write_inconsistency(pipeline, run_dir, scale, scene_dir, progress))
     return written

@@ -3,7 +3,7 @@
 :func:`run_object` is the one job function of every engine (the engines only decide where and when it
 runs). It trains the object's run folder (continuing from its newest checkpoint when a killed batch left
 one), loads the finished run back as ``va-export`` and ``va-eval`` do, writes ``mesh.ply`` (vertex
-colours), the textured ``mesh.glb`` (unless the batch turned textures off), a small grey picture of the
+colors), the textured ``mesh.glb`` (unless the batch turned textures off), a small grey picture of the
 mesh (``thumbnail.png``, for the contact sheet), optionally a turntable of the textured mesh, and evaluates
 the run when the object has ground truth. :func:`reconstruct` is that work (:func:`va_plugin.api.reconstruct`,
 which ``va-recon`` calls, and the thumbnail); :func:`run_object` wraps it for a batch: it never raises for a
@@ -58,7 +58,7 @@ class ObjectJob:
     threads: int = 1
     evaluation: Evaluation = field(default_factory=Evaluation)
     texture_size: int = 0
-    """Side of the baked texture (``va-export mesh --texture``); 0: vertex colours only."""
+    """Side of the baked texture (``va-export mesh --texture``); 0: vertex colors only."""
     fusion: str = "robust"
     """How the texture fuses disagreeing views (``va-export mesh --fusion``)."""
     turntable_frames: int = 0

@@ -75,8 +75,8 @@ def _caption(tile: np.ndarray, text: str, failed: bool) -> np.ndarray:
     import cv2
 
     band = np.full((CAPTION_PX, tile.shape[1], 3), 255, np.uint8)
-    colour = (200, 0, 0) if failed else (0, 0, 0)
-    cv2.putText(band, text, (3, CAPTION_PX - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, colour, 1, cv2.LINE_AA)
+    color = (200, 0, 0) if failed else (0, 0, 0)
+    cv2.putText(band, text, (3, CAPTION_PX - 4), cv2.FONT_HERSHEY_SIMPLEX, 0.35, color, 1, cv2.LINE_AA)
     return np.concatenate([band, tile], axis=0)
 
 

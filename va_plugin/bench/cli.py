@@ -66,6 +66,7 @@ def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
     parser.add_argument("--scenes", default=None,
                         help="comma-separated: NAME (procedural), gso:NAME, mesh:PATH, or the groups "
                              "procedural and gso (default: the preset's)")
+    parser.set_defaults(level=None, views=None)  # the flags of the settings the experiment fixes are left out
     if "level" not in experiment.fixed:
         parser.add_argument("--level", type=int, default=None,
                             help="inconsistency level 0-3 (default: the preset's, 2)")
@@ -102,9 +103,9 @@ def preset_from_args(args: argparse.Namespace) -> BenchPreset:
     if args.scenes is not None:
         names = tuple(comma_list(args.scenes))
         changes.update(scenes=names, axis_scenes=names)
-    if getattr(args, "level", None) is not None:
+    if args.level is not None:
         changes["level"] = args.level
-    if getattr(args, "views", None) is not None:
+    if args.views is not None:
         changes["views"] = args.views
     if args.steps is not None:
         if args.steps < 1:
@@ -124,7 +125,7 @@ def backbones_from_args(args: argparse.Namespace) -> list[str]:
 def adaptive_overrides(args: argparse.Namespace) -> tuple:
     """``--force-adaptive`` and ``--adaptive-set`` as overrides of the view-adaptive rows."""
     forced = ("pipeline.model.field.skip_consistent_scenes=false",) if args.force_adaptive else ()
-    extra = tuple(getattr(args, "adaptive_set", None) or ())
+    extra = tuple(args.adaptive_set)
     bad = [a for a in extra if "=" not in a or not a.split("=", 1)[0].strip()]
     if bad:
         raise ConfigError(f"--adaptive-set takes PATH=VALUE, got {bad[0]!r}")

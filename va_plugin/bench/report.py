@@ -287,7 +287,7 @@ def _pyplot():
     return plt
 
 
-COLOURS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf")
+COLORS = ("#1f77b4", "#d62728", "#2ca02c", "#ff7f0e", "#9467bd", "#8c564b", "#e377c2", "#17becf")
 
 
 def plot_time_curves(rows: Sequence[dict[str, Any]], path: Path, title: str) -> Path | None:
@@ -297,18 +297,18 @@ def plot_time_curves(rows: Sequence[dict[str, Any]], path: Path, title: str) -> 
     if plt is None or not rows:
         return None
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
-    for colour, (label, group) in zip(COLOURS * 4, group_rows(rows, lambda r: r["variant"]).items()):
+    for color, (label, group) in zip(COLORS * 4, group_rows(rows, lambda r: r["variant"]).items()):
         curves = [r.get("curve") or [] for r in group]
         for curve in curves:
             for ax, metric in zip(axes, ("cd", "psnr")):
                 ax.plot([p["train_seconds"] for p in curve], [_nan(p.get(metric)) for p in curve],
-                        color=colour, alpha=0.3, linewidth=0.8, marker=".")
+                        color=color, alpha=0.3, linewidth=0.8, marker=".")
         length = min((len(c) for c in curves), default=0)
         if length:
             for ax, metric in zip(axes, ("cd", "psnr")):
                 xs = [mean_sd(c[i]["train_seconds"] for c in curves)[0] for i in range(length)]
                 ys = [mean_sd(c[i].get(metric) for c in curves)[0] for i in range(length)]
-                ax.plot(xs, ys, color=colour, linewidth=2.2, marker="o", label=f"{label} (mean of {len(curves)})")
+                ax.plot(xs, ys, color=color, linewidth=2.2, marker="o", label=f"{label} (mean of {len(curves)})")
     axes[0].set(xlabel="training seconds", ylabel="Chamfer distance (lower is better)", title="CD")
     axes[1].set(xlabel="training seconds", ylabel="PSNR dB, held-out views (higher is better)", title="PSNR")
     for ax in axes:
@@ -325,19 +325,19 @@ def plot_against(rows: Sequence[dict[str, Any]], x_key: str, metrics: Sequence[s
     if plt is None or not rows:
         return None
     fig, axes = plt.subplots(1, len(metrics), figsize=(5.5 * len(metrics), 4.2), squeeze=False)
-    for colour, (label, group) in zip(COLOURS * 4, group_rows(rows, lambda r: r["variant"]).items()):
+    for color, (label, group) in zip(COLORS * 4, group_rows(rows, lambda r: r["variant"]).items()):
         for ax, metric in zip(axes[0], metrics):
             if fits:
                 xs, ys = [r[x_key] for r in group], [_nan(r.get(metric)) for r in group]
-                ax.scatter(xs, ys, color=colour, s=18, label=label)
+                ax.scatter(xs, ys, color=color, s=18, label=label)
                 line = linear_fit(xs, ys)
                 if line is not None:
                     lo, hi = min(finite(xs)), max(finite(xs))
-                    ax.plot([lo, hi], [line[1] + line[0] * lo, line[1] + line[0] * hi], color=colour, linewidth=1.5)
+                    ax.plot([lo, hi], [line[1] + line[0] * lo, line[1] + line[0] * hi], color=color, linewidth=1.5)
             else:
                 by_x = group_rows(sorted(group, key=lambda r: r[x_key]), lambda r: r[x_key])
                 stats = [mean_sd(r.get(metric) for r in g) for g in by_x.values()]
-                ax.errorbar(list(by_x), [s[0] for s in stats], yerr=[s[1] for s in stats], color=colour,
+                ax.errorbar(list(by_x), [s[0] for s in stats], yerr=[s[1] for s in stats], color=color,
                             marker="o", capsize=3, label=label)
     for ax, metric in zip(axes[0], metrics):
         ax.set(xlabel=xlabel, ylabel=METRIC_TITLES.get(metric, metric), title=METRIC_TITLES.get(metric, metric))
@@ -348,7 +348,7 @@ def plot_against(rows: Sequence[dict[str, Any]], x_key: str, metrics: Sequence[s
 
 def plot_stacked_bars(parts: dict[str, dict[str, float]], path: Path, title: str, xlabel: str) -> Path | None:
     """A horizontal bar per label (``parts``: label -> {part: value}), split into its parts, which have the
-    same colour in every bar (the parts of the first label set the order)."""
+    same color in every bar (the parts of the first label set the order)."""
     plt = _pyplot()
     if plt is None or not parts:
         return None
@@ -358,9 +358,9 @@ def plot_stacked_bars(parts: dict[str, dict[str, float]], path: Path, title: str
     left = [0.0] * len(labels)
     palette, extra = plt.get_cmap("tab10"), plt.get_cmap("Dark2")
     for index, name in enumerate(names):
-        colour = palette(index) if index < 10 else extra(index % 8)
+        color = palette(index) if index < 10 else extra(index % 8)
         widths = [max(0.0, _nan(parts[label].get(name, 0.0))) for label in labels]
-        ax.barh(labels, widths, left=left, color=colour, label=name)
+        ax.barh(labels, widths, left=left, color=color, label=name)
         left = [a + b for a, b in zip(left, widths)]
     ax.invert_yaxis()
     ax.set(xlabel=xlabel, title=title)

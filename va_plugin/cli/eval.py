@@ -30,7 +30,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
     parser.add_argument("--fusion", choices=("robust", "mean"), default="robust", help="per-texel fusion of the views")
     parser.add_argument("--no-harmonise", action="store_true",
-                        help="robust fusion: skip levelling each view's colour gains against the others")
+                        help="robust fusion: skip levelling each view's color gains against the others")
     parser.add_argument("--texture-supersample", type=int, default=1,
                         help="rays per pixel side for the textured mesh's renders (default 1: one ray through each "
                         "pixel centre, as the field's renders; 2 averages 2x2 rays, anti-aliased edges but a "

@@ -16,7 +16,7 @@ from va_plugin.utils.memory import check_render_size
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="va-export", description="Export meshes and renders of a trained run.")
     sub = parser.add_subparsers(dest="what", required=True)
-    mesh = sub.add_parser("mesh", help="marching-cubes mesh with vertex colours, or textured with --texture")
+    mesh = sub.add_parser("mesh", help="marching-cubes mesh with vertex colors, or textured with --texture")
     mesh.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
     mesh.add_argument("--output", type=Path, default=None,
                       help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply; RUN/mesh.glb with --texture)")
@@ -34,7 +34,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="how disagreeing views are fused per texel: robust consensus or weighted mean "
                       "(default %(default)s)")
     mesh.add_argument("--no-harmonise", action="store_true",
-                      help="robust fusion: skip levelling each view's colour gains against the others")
+                      help="robust fusion: skip levelling each view's color gains against the others")
     mesh.add_argument("--use-inconsistency", action="store_true",
                       help="view-adaptive runs: weight each view down where its inconsistency map is high")
     render = sub.add_parser("render", help="held-out views and a turntable (PNG frames and MP4)")
@@ -77,7 +77,7 @@ def main(argv: list[str] | None = None) -> int:
 
 
 def export_mesh_command(args: argparse.Namespace) -> int:
-    """``va-export mesh``: the mesh with vertex colours, or the textured mesh with ``--texture``."""
+    """``va-export mesh``: the mesh with vertex colors, or the textured mesh with ``--texture``."""
     output = args.output if args.output is not None else args.load_dir / ("mesh.glb" if args.texture else "mesh.ply")
     files = export_mesh(args.load_dir, texture=args.texture, resolution=args.resolution,
                         texture_size=args.texture_size, fusion=args.fusion, output=None if not args.texture

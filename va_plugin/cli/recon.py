@@ -41,10 +41,10 @@ def build_parser(methods) -> argparse.ArgumentParser:
     parser.add_argument("--views", type=parse_views, default=None, help=VIEWS_HELP + " (default: all)")
     parser.add_argument("--masks", type=Path, default=None,
                         help="mask folder (one image per view) or one mask image in the input's layout, "
-                             "instead of the input's alpha or the colour key")
+                             "instead of the input's alpha or the color key")
     parser.add_argument("--data-format", default="auto", choices=("auto", *FORMATS),
                         help="input format (default auto: detected from the input)")
-    parser.add_argument("--no-texture", action="store_true", help="vertex colours only (no mesh.glb, no turntable)")
+    parser.add_argument("--no-texture", action="store_true", help="vertex colors only (no mesh.glb, no turntable)")
     parser.add_argument("--texture-size", type=int, default=1024,
                         help="texture side in texels, a power of two (default 1024)")
     parser.add_argument("--mesh-resolution", type=int, default=128,

@@ -32,7 +32,7 @@ def build_parser(methods) -> argparse.ArgumentParser:
     add_object_options(parser)
     parser.add_argument("--masks", type=Path, default=None,
                         help="generator inputs: mask folder (one image per view) or one mask image in the "
-                             "input's layout, instead of the colour key")
+                             "input's layout, instead of the color key")
     parser.add_argument("--output-dir", type=Path, default=None, help="run folder (default outputs/METHOD)")
     parser.add_argument("--resume", action="store_true", help="continue from the run folder's newest checkpoint")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")

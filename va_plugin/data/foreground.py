@@ -1,7 +1,7 @@
 """Foreground masks for inputs without alpha, and a picture of them for the user to check.
 
 Generators paint the object on a flat background (white, or gray for Zero123++).
-:func:`colour_key_mask` estimates that colour from the view's border, keys it out, closes the edges,
+:func:`color_key_mask` estimates that color from the view's border, keys it out, closes the edges,
 drops specks and fills small enclosed holes (large ones, like a mug's handle, stay open).
 """
 
@@ -19,15 +19,15 @@ from va_plugin.errors import DataError
 
 
 @dataclass
-class ColourKey:
+class ColorKey:
     """How background is told from object in an image without alpha."""
 
     threshold: float = 0.06
-    """A pixel is foreground when a channel differs from the background colour by more than this."""
+    """A pixel is foreground when a channel differs from the background color by more than this."""
     border: int = 3
-    """Width in pixels of the frame of each view that the background colour is estimated from."""
+    """Width in pixels of the frame of each view that the background color is estimated from."""
     min_border_share: float = 0.5
-    """At least this share of the border must match the estimated colour, or there is no flat background."""
+    """At least this share of the border must match the estimated color, or there is no flat background."""
     close_px: int = 3
     """Side of the square kernel of the morphological closing (0: none)."""
     min_blob: float = 0.02
@@ -45,7 +45,7 @@ def _frame(values: np.ndarray, border: int) -> np.ndarray:
 
 
 def estimate_background(image: np.ndarray, border: int = 3) -> np.ndarray:
-    """The median colour ``[3]`` of the outer ``border`` pixels of an RGB image ``[H, W, 3]``."""
+    """The median color ``[3]`` of the outer ``border`` pixels of an RGB image ``[H, W, 3]``."""
     return np.median(_frame(image, border), axis=0).astype(np.float32)
 
 
@@ -69,16 +69,16 @@ def _fill_small_holes(mask: np.ndarray, max_share: float) -> np.ndarray:
     return mask | fill[labels]
 
 
-def colour_key_mask(image: np.ndarray, key: ColourKey | None = None, where: str = "image") -> np.ndarray:
+def color_key_mask(image: np.ndarray, key: ColorKey | None = None, where: str = "image") -> np.ndarray:
     """Foreground mask ``[H, W, 1]`` (0 or 1, float32) of an RGB image ``[H, W, 3]`` on a flat background;
-    DataError when the border has no dominant colour, or nothing stands out from it."""
-    key = key or ColourKey()
+    DataError when the border has no dominant color, or nothing stands out from it."""
+    key = key or ColorKey()
     background = estimate_background(image, key.border)
     distance = np.abs(image - background).max(axis=-1)
     frame = _frame(distance, key.border)
-    colour = ", ".join(f"{round(255 * c)}" for c in background)
+    color = ", ".join(f"{round(255 * c)}" for c in background)
     if (frame <= key.threshold).mean() < key.min_border_share:
-        raise DataError(f"{where}: no flat background colour along the border, so the object cannot be keyed "
+        raise DataError(f"{where}: no flat background color along the border, so the object cannot be keyed "
                         "out; pass a mask for every view with --masks")
     mask = distance > key.threshold
     if key.close_px > 1:
@@ -88,7 +88,7 @@ def colour_key_mask(image: np.ndarray, key: ColourKey | None = None, where: str 
     mask = _fill_small_holes(mask, key.max_hole)
     if mask.mean() < key.min_foreground:
         raise DataError(f"{where}: no detectable foreground (every pixel is within {key.threshold:.2f} of the "
-                        f"background colour {colour}); pass a mask with --masks, or check the input")
+                        f"background color {color}); pass a mask with --masks, or check the input")
     return mask[:, :, None].astype(np.float32)
 
 
@@ -130,7 +130,7 @@ def write_mask_picture(path: Path, images: np.ndarray, masks: np.ndarray) -> Pat
     return Path(path)
 
 
-def check_masks(masks: list[np.ndarray], names: Sequence[str], key: ColourKey) -> None:
+def check_masks(masks: list[np.ndarray], names: Sequence[str], key: ColorKey) -> None:
     """Refuse masks (user-supplied or alpha) that leave a view with no foreground."""
     for mask, name in zip(masks, names):
         if mask.mean() < key.min_foreground:

@@ -26,12 +26,7 @@ class TrainingCallbackAttributes:
     run_dir: Path  # the run folder (for files a callback writes)
     progress: bool  # whether the run shows progress (and so may print)
     announce: Callable[..., None]  # ``announce(step, message, **fields)``: a console line and a log record
-    schedule_steps: int | None = None  # where the run's schedules end; None: ``max_steps``
-
-    @property
-    def horizon(self) -> int:
-        """Steps over which schedules (the adaptive phases, ...) run."""
-        return self.max_steps if self.schedule_steps is None else int(self.schedule_steps)
+    schedule_steps: int  # where the run's schedules (the adaptive phases, ...) end: see ``schedule_steps_of``
 
 
 @dataclass

@@ -24,6 +24,7 @@ from typing import Any
 
 import torch
 
+from va_plugin.config import Checked
 from va_plugin.errors import ConfigError, VAError
 from va_plugin.rays import RayBundle
 from va_plugin.utils.stages import timed
@@ -40,7 +41,7 @@ class UnusableModel(VAError):
 
 
 @dataclass
-class HealthConfig:
+class HealthConfig(Checked):
     """When a step counts as bad, and what the trainer does about it."""
 
     spike_factor: float = 20.0

@@ -5,11 +5,12 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass
 
+from va_plugin.config import Checked
 from va_plugin.errors import ConfigError
 
 
 @dataclass
-class OptimizerConfig:
+class OptimizerConfig(Checked):
     """Adam for one parameter group."""
 
     lr: float = 5e-4
@@ -31,7 +32,7 @@ class OptimizerConfig:
 
 
 @dataclass
-class SchedulerConfig:
+class SchedulerConfig(Checked):
     """Linear warm-up, then cosine decay to ``final_fraction`` of the base rate."""
 
     warmup_steps: int = 100
@@ -45,10 +46,10 @@ class SchedulerConfig:
         if not (math.isfinite(self.final_fraction) and 0.0 <= self.final_fraction <= 1.0):
             raise ConfigError(f"{prefix}final_fraction must be in [0, 1], got {self.final_fraction}")
 
-    def factor(self, step: int, max_steps: int) -> float:
+    def factor(self, step: int, schedule_steps: int) -> float:
         if self.warmup_steps > 0 and step < self.warmup_steps:
             return (step + 1) / self.warmup_steps
-        span = max(1, max_steps - self.warmup_steps)
+        span = max(1, schedule_steps - self.warmup_steps)
         progress = min(1.0, max(0.0, (step - self.warmup_steps) / span))
         cosine = 0.5 * (1.0 + math.cos(math.pi * progress))
         return self.final_fraction + (1.0 - self.final_fraction) * cosine

@@ -11,7 +11,7 @@ import warnings
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, ClassVar
 
 import numpy as np
 import torch
@@ -51,7 +51,7 @@ class TrainerConfig(InstantiateConfig):
     schedule_steps: int = 0
     """Steps over which every schedule runs (learning rate, grid levels, priors' starts, annealing, the
     adaptive phases); 0: ``max_steps``. A shorter budget compresses the schedules; a longer one trains
-    past ``schedule_steps`` at their final values (see :func:`schedule_horizon`)."""
+    past ``schedule_steps`` at their final values (see :func:`schedule_steps_of`)."""
     seed: int = 42
     """Seed of every random generator (the paper's 42)."""
     device: str = "auto"
@@ -83,11 +83,11 @@ class TrainerConfig(InstantiateConfig):
             raise ConfigError(f"schedule_steps must be >= 0 (0: max_steps), got {self.schedule_steps}")
 
 
-def schedule_horizon(config: TrainerConfig) -> int:
+def schedule_steps_of(config: TrainerConfig) -> int:
     """The step at which a run's schedules end: ``min(max_steps, schedule_steps)``, or ``max_steps`` when
     ``schedule_steps`` is 0."""
-    steps, horizon = int(config.max_steps), int(config.schedule_steps)
-    return min(steps, horizon) if horizon > 0 else steps
+    steps, schedule = int(config.max_steps), int(config.schedule_steps)
+    return min(steps, schedule) if schedule > 0 else steps
 
 
 def seed_everything(seed: int) -> None:
@@ -147,9 +147,15 @@ class RemovedOption:
 
 
 class _Unpickler(pickle.Unpickler):
-    """Unpickles checkpoints of earlier versions: a va_plugin class that is gone becomes :class:`RemovedOption`."""
+    """Unpickles checkpoints of earlier versions: a renamed class is found under its new name, a va_plugin
+    class that is gone becomes :class:`RemovedOption`."""
+
+    RENAMED: ClassVar[dict[tuple[str, str], tuple[str, str]]] = {
+        ("va_plugin.data.foreground", "ColourKey"): ("va_plugin.data.foreground", "ColorKey")}
+    """(module, class) of an earlier version -> where that class is now."""
 
     def find_class(self, module: str, name: str) -> Any:
+        module, name = self.RENAMED.get((module, name), (module, name))
         try:
             return super().find_class(module, name)
         except (ImportError, AttributeError):
@@ -204,15 +210,15 @@ class Trainer:
             keep_freed_memory()  # no page faults for each step's temporaries; the same values
         seed_everything(config.seed)
         self.run_dir = Path(config.output_dir)
-        self.horizon = schedule_horizon(config)
-        self.pipeline = config.pipeline.setup(device=self.device, max_steps=self.horizon)
+        self.schedule_steps = schedule_steps_of(config)
+        self.pipeline = config.pipeline.setup(device=self.device, schedule_steps=self.schedule_steps)
         self.model = self.pipeline.model
         self.optimizer = self._make_optimizer()
         self.lr_multipliers: dict[str, float] = dict.fromkeys(self.group_names, 1.0)
         self.callbacks: list[TrainingCallback] = list(self.model.training_callbacks())
         self.callback_attributes = TrainingCallbackAttributes(
             pipeline=self.pipeline, max_steps=config.max_steps, run_dir=self.run_dir, progress=config.progress,
-            announce=self.announce, schedule_steps=self.horizon)
+            announce=self.announce, schedule_steps=self.schedule_steps)
         self.step = 0
         self.train_seconds = 0.0
         self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"),
@@ -239,7 +245,7 @@ class Trainer:
         return make_adam(param_groups)
 
     def _set_learning_rates(self, step: int) -> None:
-        factor = self.config.scheduler.factor(step, self.horizon)
+        factor = self.config.scheduler.factor(step, self.schedule_steps)
         for group in self.optimizer.param_groups:
             base = self.config.optimizers[group["name"]].lr
             group["lr"] = base * factor * self.lr_multipliers.get(group["name"], 1.0) * self.guard.lr_scale

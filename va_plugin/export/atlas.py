@@ -84,7 +84,7 @@ def rasterize_uv(uv: np.ndarray, faces: np.ndarray, size: int):
 
 def dilate(image: np.ndarray, filled: np.ndarray, iterations: int = PADDING_TEXELS) -> np.ndarray:
     """Grow the filled texels of ``image [S, S, 3]`` outwards by ``iterations`` texels (mean of the filled
-    3x3 neighbours), then give any still-empty texel the mean colour."""
+    3x3 neighbours), then give any still-empty texel the mean color."""
     image = np.where(filled[..., None], image, 0.0).astype(np.float32)
     filled = filled.astype(np.float32)
     for _ in range(iterations):

@@ -1,10 +1,10 @@
-"""Colour fusion across views, and the per-view colour harmonisation that precedes it.
+"""Color fusion across views, and the per-view color harmonisation that precedes it.
 
-- ``mean``: the weighted average of the visible views' colours;
+- ``mean``: the weighted average of the visible views' colors;
 - ``robust``: the weighted medoid as a consensus, then reweighting rounds in which a view loses weight
   when it deviates from the consensus by more than its own noise.
 
-Harmonisation fits one colour gain per view and channel so that the views agree where they overlap.
+Harmonisation fits one color gain per view and channel so that the views agree where they overlap.
 """
 
 from __future__ import annotations
@@ -21,27 +21,27 @@ OUTLIER_SCALE = 2.0
 """A view deviating from the consensus by this many times its noise keeps 1/2 of its weight (Cauchy)."""
 ROBUST_ROUNDS = 3
 HARMONISE_ROUNDS = 8
-"""Reweighting rounds of the per-view colour fit (enough for a blob on part of a view to stop pulling)."""
+"""Reweighting rounds of the per-view color fit (enough for a blob on part of a view to stop pulling)."""
 FIT_WEIGHT = 0.25
 """Only texels both views of a pair see well (weight >= this: within 60 degrees of head-on, away from
-silhouette edges) enter the colour fit."""
+silhouette edges) enter the color fit."""
 RIDGE = 1e-3
 """Pull of each view's gains towards 1, per unit of the mean overlap weight of a view (it pins a view that
 overlaps no other)."""
 MAX_GAIN = 1.2
-"""Largest colour gain (and 1 / smallest) the harmonisation trusts; a view fitted beyond it is left as it
+"""Largest color gain (and 1 / smallest) the harmonisation trusts; a view fitted beyond it is left as it
 is (a far larger fit comes from misregistered overlaps, not from a cast)."""
 
 
-def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 65536) -> np.ndarray:
-    """Per point, the visible colour with the least weighted sum of distances to the other visible
-    colours: ``colours [m, n, 3]``, ``weights [m, n]`` -> ``[m, 3]``."""
+def weighted_medoid(colors: np.ndarray, weights: np.ndarray, chunk: int = 65536) -> np.ndarray:
+    """Per point, the visible color with the least weighted sum of distances to the other visible
+    colors: ``colors [m, n, 3]``, ``weights [m, n]`` -> ``[m, 3]``."""
     # with at most two visible views the medoid is the heavier one: no pairwise distances needed
-    out = np.take_along_axis(colours, np.argmax(weights, axis=1)[:, None, None], axis=1)[:, 0].astype(np.float32)
+    out = np.take_along_axis(colors, np.argmax(weights, axis=1)[:, None, None], axis=1)[:, 0].astype(np.float32)
     many = np.nonzero((weights > 0).sum(1) > 2)[0]
     for s in range(0, len(many), chunk):
         rows = many[s:s + chunk]
-        c, w = torch.from_numpy(colours[rows]), torch.from_numpy(weights[rows])
+        c, w = torch.from_numpy(colors[rows]), torch.from_numpy(weights[rows])
         cost = torch.bmm(torch.cdist(c, c), w[:, :, None])[:, :, 0]  # [m, n]: weighted distance to the others
         cost[w <= 0] = torch.inf
         best = cost.argmin(1)
@@ -50,7 +50,7 @@ def weighted_medoid(colours: np.ndarray, weights: np.ndarray, chunk: int = 65536
 
 
 def view_noise(residual: np.ndarray, visible: np.ndarray) -> np.ndarray:
-    """Each view's own noise ``[n]``: the median distance of its colours from the consensus where at least
+    """Each view's own noise ``[n]``: the median distance of its colors from the consensus where at least
     three views (else two) see a point, in [NOISE_FLOOR, twice the median over all views]."""
     count = visible.sum(1)
     pooled_sel = visible & (count >= 2)[:, None]
@@ -66,16 +66,16 @@ def view_noise(residual: np.ndarray, visible: np.ndarray) -> np.ndarray:
     return np.clip(noise, NOISE_FLOOR, cap)
 
 
-def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
-    """Fused colour ``[m, 3]`` and the final per-view weights ``[m, n]`` (normalised per point; zero rows
-    where no view sees the point) of ``colours [m, n, 3]`` seen with ``weights [m, n]``."""
+def fuse(colors: np.ndarray, weights: np.ndarray, mode: str = "robust"):
+    """Fused color ``[m, 3]`` and the final per-view weights ``[m, n]`` (normalised per point; zero rows
+    where no view sees the point) of ``colors [m, n, 3]`` seen with ``weights [m, n]``."""
     if mode not in FUSIONS:
         raise VAError(f"unknown fusion {mode!r}; use one of {', '.join(FUSIONS)}")
-    colours, weights = np.ascontiguousarray(colours, np.float32), np.ascontiguousarray(weights, np.float32)
-    c, w0 = torch.from_numpy(colours), torch.from_numpy(weights)
+    colors, weights = np.ascontiguousarray(colors, np.float32), np.ascontiguousarray(weights, np.float32)
+    c, w0 = torch.from_numpy(colors), torch.from_numpy(weights)
     w = w0
-    if mode == "robust" and colours.shape[1] > 1:
-        consensus = torch.from_numpy(weighted_medoid(colours, weights))
+    if mode == "robust" and colors.shape[1] > 1:
+        consensus = torch.from_numpy(weighted_medoid(colors, weights))
         residual = (c - consensus[:, None]).norm(dim=-1)
         noise = torch.from_numpy(view_noise(residual.numpy(), weights > 0))
         for _ in range(ROBUST_ROUNDS):
@@ -87,14 +87,14 @@ def fuse(colours: np.ndarray, weights: np.ndarray, mode: str = "robust"):
     return torch.einsum("mn,mnc->mc", share, c).numpy(), share.numpy()
 
 
-def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS,
+def harmonise(colors: np.ndarray, weights: np.ndarray, reference: int = 0, rounds: int = HARMONISE_ROUNDS,
               max_gain: float | None = None):
-    """Per-view colour gains that make the views agree where they overlap: ``gains [n, 3]`` with view
+    """Per-view color gains that make the views agree where they overlap: ``gains [n, 3]`` with view
     ``reference`` (the generator's conditioning view) fixed at 1.
 
     Per channel, a robust (Cauchy-reweighted) least-squares fit of ``a_k c_k = a_l c_l`` over texels two
     views both see well (weight sqrt(w_k w_l)), with a weak ridge towards 1. Gains only: with offsets the
-    fit drifts on near-uniform colours. A view whose gains leave [1 / max_gain, max_gain] (default
+    fit drifts on near-uniform colors. A view whose gains leave [1 / max_gain, max_gain] (default
     MAX_GAIN; ``inf`` keeps every fit) is kept at 1 and the others are fitted again."""
     max_gain = MAX_GAIN if max_gain is None else max_gain
     _m, n = weights.shape
@@ -116,8 +116,8 @@ def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, roun
             break
         gains[:] = 1.0
         for channel in range(3):
-            samples = [(k, l, w, colours[both, k, channel].astype(np.float64),
-                        colours[both, l, channel].astype(np.float64)) for k, l, both, w in pairs]
+            samples = [(k, l, w, colors[both, k, channel].astype(np.float64),
+                        colors[both, l, channel].astype(np.float64)) for k, l, both, w in pairs]
             gains[keep, channel] = _fit_channel(samples, n, keep, ridge, rounds)
         wild = [k for k in keep if np.any(gains[k] > max_gain) or np.any(gains[k] < 1.0 / max_gain)]
         if not wild:
@@ -129,7 +129,7 @@ def harmonise(colours: np.ndarray, weights: np.ndarray, reference: int = 0, roun
 
 
 def _fit_channel(samples, n: int, keep: list[int], ridge: float, rounds: int) -> np.ndarray:
-    """Gains of views ``keep`` for one colour channel (the other views held at 1): iteratively reweighted
+    """Gains of views ``keep`` for one color channel (the other views held at 1): iteratively reweighted
     least squares of ``a_k c_k - a_l c_l`` over ``samples``, one ``(k, l, weight, c_k, c_l)`` per pair
     of views of :func:`harmonise` (float64 arrays of the texels both see well)."""
     gains = np.ones(n)
@@ -154,7 +154,7 @@ def _fit_channel(samples, n: int, keep: list[int], ridge: float, rounds: int) ->
     return gains[keep]
 
 
-def apply_harmonisation(colours: np.ndarray, weights: np.ndarray, gains: np.ndarray) -> np.ndarray:
-    """``colours [m, n, 3]`` with each view's gains applied where it sees the point (clipped to [0, 1])."""
-    out = np.clip(colours * gains[None], 0.0, 1.0).astype(np.float32)
-    return np.where((weights > 0)[..., None], out, colours)
+def apply_harmonisation(colors: np.ndarray, weights: np.ndarray, gains: np.ndarray) -> np.ndarray:
+    """``colors [m, n, 3]`` with each view's gains applied where it sees the point (clipped to [0, 1])."""
+    out = np.clip(colors * gains[None], 0.0, 1.0).astype(np.float32)
+    return np.where((weights > 0)[..., None], out, colors)

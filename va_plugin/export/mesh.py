@@ -1,4 +1,4 @@
-"""Marching-cubes meshes with vertex colours from a trained model."""
+"""Marching-cubes meshes with vertex colors from a trained model."""
 
 from __future__ import annotations
 
@@ -28,7 +28,8 @@ def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: 
 def extract_mesh(model, resolution: int = 128, bound: float | None = None, with_color: bool = True,
                  largest_component: bool = False) -> trimesh.Trimesh:
     """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound,
-    after the model's optional ``prepare_mesh_grid(values, spacing)`` and ``fill_mesh_cavities``.
+    after the model's ``prepare_mesh_grid(values, spacing)`` and ``fill_mesh_cavities`` (``Model``'s defaults:
+    unchanged, not filled).
     Raises VAError when the field has no surface inside the bound."""
     from skimage.measure import marching_cubes
 
@@ -45,15 +46,13 @@ def extract_mesh(model, resolution: int = 128, bound: float | None = None, with_
     if not np.isfinite(values).all():
         raise VAError("the field holds NaN or infinite values; the run diverged, so there is no mesh to extract")
     spacing = 2.0 * bound / (resolution - 1)
-    prepare = getattr(model, "prepare_mesh_grid", None)
-    if prepare is not None:  # e.g. ngp: its density smoothed in log space
-        values = prepare(values, spacing)
+    values = model.prepare_mesh_grid(values, spacing)  # e.g. ngp: its density smoothed in log space
     # outside the bounding sphere counts as empty, so no surface appears beyond the bound
     values = np.maximum(values, sphere_distance_grid(resolution, bound, radius))
     if values.min() >= 0.0 or values.max() <= 0.0:
         raise VAError("the field has no surface inside the scene bound (no zero crossing); "
                       "the run may have diverged or trained too briefly")
-    if getattr(model, "fill_mesh_cavities", False):
+    if model.fill_mesh_cavities:
         values = fill_enclosed_cavities(values)
     filled = inside_share_at_bound(values, bound, radius, spacing)
     if filled > BOUND_FILLED_SHARE:

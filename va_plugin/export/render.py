@@ -104,7 +104,7 @@ def render_test_views(pipeline, out_dir: Path, scale: float = 1.0, max_views: in
 def mesh_views(meshes: list[trimesh.Trimesh], n_views: int = 4, resolution: int = 128,
                elevation_deg: float = 30.0, background: float = 1.0) -> np.ndarray:
     """One row per mesh of ``n_views`` grey shaded renders on the SyncDreamer orbit: the meshes' geometry
-    side by side (vertex colours are ignored)."""
+    side by side (vertex colors are ignored)."""
 
     cameras = turntable_cameras(n_views, resolution, elevation_deg)
     grey = lambda hits: np.full((hits.points.shape[0], 3), 0.8, np.float32)

@@ -1,7 +1,7 @@
 """Textured meshes: a mesh's texture baked from the input views, and baking a loaded run's mesh.
 
-Per texel: every view's colour and weight (:mod:`va_plugin.export.views`), levelled across views and
-fused (:mod:`va_plugin.export.fusion`); texels no view sees take a fall-back colour; empty texels around
+Per texel: every view's color and weight (:mod:`va_plugin.export.views`), levelled across views and
+fused (:mod:`va_plugin.export.fusion`); texels no view sees take a fall-back color; empty texels around
 the atlas charts (:mod:`va_plugin.export.atlas`) are dilated so filtering does not bleed into seams.
 """
 
@@ -53,12 +53,12 @@ class TexturedMesh:
 class BakeReport:
     """What the bake did: per-view weight maps in texture space and counts."""
 
-    weight_maps: np.ndarray  # [n, S, S] share of each view in each texel's colour
+    weight_maps: np.ndarray  # [n, S, S] share of each view in each texel's color
     covered: int  # texels on the surface
     seen: int  # of those, texels at least one view sees
     view_texels: list[int]  # texels each view sees
     seconds: dict[str, float] = field(default_factory=dict)
-    gains: np.ndarray | None = None  # [n, 3] per-view colour gain of the harmonisation (None: off)
+    gains: np.ndarray | None = None  # [n, 3] per-view color gain of the harmonisation (None: off)
 
     def summary(self) -> dict[str, object]:
         total = np.maximum(self.weight_maps.sum(0), 1e-12)
@@ -68,7 +68,7 @@ class BakeReport:
                "view_share": [round(s, 4) for s in share],
                "seconds": {k: round(v, 2) for k, v in self.seconds.items()}}
         if self.gains is not None:
-            out["view_colour_gain"] = np.round(self.gains, 4).tolist()
+            out["view_color_gain"] = np.round(self.gains, 4).tolist()
         return out
 
 
@@ -80,16 +80,16 @@ def check_texture_size(size: int) -> None:
 
 
 Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
-"""Colours ``[m, 3]`` of surface points ``[m, 3]`` with normals ``[m, 3]`` (e.g. the field's own colour)."""
+"""Colors ``[m, 3]`` of surface points ``[m, 3]`` with normals ``[m, 3]`` (e.g. the field's own color)."""
 
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Fallback | None = None, progress: bool = False, atlas=None,
                  harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES):
     """UV-unwrap ``mesh`` (simplified to ``max_faces`` first) and bake its texture from ``views``:
-    ``(TexturedMesh, BakeReport)``. ``fallback``: the colour of texels no view sees. ``atlas``: the
+    ``(TexturedMesh, BakeReport)``. ``fallback``: the color of texels no view sees. ``atlas``: the
     ``(vertices, faces, uv)`` of an earlier :func:`~va_plugin.export.atlas.unwrap` at this size, reused.
-    ``harmonise_views``: level the views' colours before fusing (None: with robust fusion only).
+    ``harmonise_views``: level the views' colors before fusing (None: with robust fusion only).
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
     check_texture_memory(size, len(views))
@@ -114,7 +114,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     vertex_normals = smooth_vertex_normals(vertices, faces)
     normals = np.einsum("mk,mkc->mc", b, vertex_normals[corners])
     normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
-    colours, weights, in_view = view_samples(vertices, faces, points, normals, views, progress=progress)
+    colors, weights, in_view = view_samples(vertices, faces, points, normals, views, progress=progress)
     view_texels = [int(c) for c in (weights > 0).sum(0)]
     blind = [k for k in range(len(views)) if not in_view[k]]
     if blind:
@@ -124,10 +124,10 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
                       "do not fit together")
     gains = None
     if harmonise_views if harmonise_views is not None else fusion == "robust":
-        gains = harmonise(colours, weights)
-        colours = apply_harmonisation(colours, weights, gains)
+        gains = harmonise(colors, weights)
+        colors = apply_harmonisation(colors, weights, gains)
     seen = (weights > 0).any(1)
-    fused, share = fuse(colours, weights, fusion)
+    fused, share = fuse(colors, weights, fusion)
     if fallback is not None and (~seen).any():
         fused[~seen] = np.clip(fallback(points[~seen], normals[~seen]), 0.0, 1.0)
         seen_or_filled = np.ones_like(seen)
@@ -153,7 +153,7 @@ def run_views(pipeline, inconsistency: bool = False, progress: bool = False) -> 
     masks = None if dm.masks is None else dm.masks.cpu().numpy().reshape(dm.images.shape[:3]) > 0.5
     maps = None
     if inconsistency:
-        if not hasattr(pipeline.model.field, "branches_active") or not pipeline.model.field.branches_active():
+        if not pipeline.model.field.has_view_branches or not pipeline.model.field.branches_active():
             raise VAError("--use-inconsistency needs a view-adaptive run (va-neus, va-ngp) whose branches trained")
 
         maps = np.stack([v["map"] for v in inconsistency_maps(pipeline, scale=0.5, progress=progress)])
@@ -161,10 +161,10 @@ def run_views(pipeline, inconsistency: bool = False, progress: bool = False) -> 
 
 
 def field_fallback(model) -> Fallback:
-    """The model's canonical surface colour as a fall-back for texels no view sees."""
+    """The model's canonical surface color as a fall-back for texels no view sees."""
     device = next(model.parameters()).device
 
-    def colour(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
+    def color(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
         out = []
         was_training = model.training
         model.eval()
@@ -178,13 +178,13 @@ def field_fallback(model) -> Fallback:
             model.train(was_training)
         return torch.cat(out).numpy() if out else np.zeros((0, 3), np.float32)
 
-    return colour
+    return color
 
 
 def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 1024, fusion: str = "robust",
                      inconsistency: bool = False, progress: bool = True, harmonise_views: bool | None = None,
                      max_faces: int | None = MAX_TEXTURE_FACES):
-    """Bake ``mesh`` from a loaded run's training views (field colour where none sees), write it to
+    """Bake ``mesh`` from a loaded run's training views (field color where none sees), write it to
     ``output`` (GLB or OBJ+MTL+PNG) with ``<stem>_bake.png`` (atlas | per-view weight maps) and
     ``<stem>_bake.json`` beside it; returns ``(TexturedMesh, BakeReport, written paths)``."""
     output = Path(output)

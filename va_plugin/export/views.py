@@ -1,4 +1,4 @@
-"""Per surface point, the colour each input view shows there and how much to trust it.
+"""Per surface point, the color each input view shows there and how much to trust it.
 
 A view sees a point in front of it, in its image, with no mesh in between (ray cast). Its weight: the
 squared cosine to the normal, times a ramp from the silhouette edge, times (with inconsistency maps) a
@@ -20,7 +20,7 @@ from va_plugin.raycast import o3d
 EDGE_PIXELS = 3.0
 """A view's weight rises from 0 at EDGE_MARGIN pixels inside its silhouette to 1 this many pixels further."""
 EDGE_MARGIN = 1.5
-"""Pixels this close to the silhouette edge blend the object with the background: they give no colour."""
+"""Pixels this close to the silhouette edge blend the object with the background: they give no color."""
 MIN_COS = 0.1
 """Views seeing the surface more grazing than this (cos of the angle to the normal) are ignored."""
 INCONSISTENCY_SCALE = 0.05
@@ -84,15 +84,15 @@ def silhouette_distance(scene, cameras: Cameras, index: int, mask: np.ndarray | 
 
 def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, normals: np.ndarray, views: Views,
                  edge_pixels: float = EDGE_PIXELS, progress: bool = False):
-    """Colour and weight of every view at every surface point ``points, normals [m, 3]`` (unit outward
-    normals) of the mesh ``vertices, faces`` (which occludes): colours ``[m, n, 3]``, weights ``[m, n]``
+    """Color and weight of every view at every surface point ``points, normals [m, 3]`` (unit outward
+    normals) of the mesh ``vertices, faces`` (which occludes): colors ``[m, n, 3]``, weights ``[m, n]``
     (0: unseen) and ``in_view [n]`` bool (any pixel of view k shows the mesh inside its mask)."""
     scene = o3d.t.geometry.RaycastingScene()
     scene.add_triangles(o3d.core.Tensor(vertices.astype(np.float32)), o3d.core.Tensor(faces.astype(np.uint32)))
     edges = np.linalg.norm(vertices[faces[:, 1]] - vertices[faces[:, 0]], axis=-1)
     tolerance = 0.5 * float(np.median(edges)) if len(edges) else 1e-3  # depth slack of the visibility test
     m, n = len(points), len(views)
-    colours = np.zeros((m, n, 3), np.float32)
+    colors = np.zeros((m, n, 3), np.float32)
     weights = np.zeros((m, n), np.float32)
     in_view = np.zeros(n, bool)
     cameras = views.cameras
@@ -118,6 +118,6 @@ def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, no
             spread = bilinear(imap, (x + 0.5) * sx - 0.5, (y + 0.5) * sy - 0.5)
             w = w * np.exp(-np.maximum(spread, 0.0) / INCONSISTENCY_SCALE)
         keep = w > 0
-        colours[idx[keep], k] = bilinear(views.images[k], x[keep], y[keep])
+        colors[idx[keep], k] = bilinear(views.images[k], x[keep], y[keep])
         weights[idx[keep], k] = w[keep]
-    return colours, weights, in_view
+    return colors, weights, in_view

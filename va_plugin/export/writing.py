@@ -65,7 +65,7 @@ def write_textured_mesh(textured: TexturedMesh, path: Path) -> list[Path]:
 
 
 def bake_picture(textured: TexturedMesh, report: BakeReport, path: Path, tile: int = 256) -> Path:
-    """The atlas next to each view's weight map (white: that view gives the texel its whole colour)."""
+    """The atlas next to each view's weight map (white: that view gives the texel its whole color)."""
     tiles = [cv2.resize(textured.image, (tile, tile), interpolation=cv2.INTER_AREA)]
     for m in report.weight_maps:
         small = cv2.resize(m, (tile, tile), interpolation=cv2.INTER_AREA)

@@ -1,11 +1,12 @@
 """The Field interface shared by every backbone: a point's geometry (SDF or density, plus a feature)
-and its colour, split into ``color_features`` (f_shared) and ``decode_color`` so the view-adaptive
+and its color, split into ``color_features`` (f_shared) and ``decode_color`` so the view-adaptive
 wrapper can act between the halves.
 """
 
 from __future__ import annotations
 
 import itertools
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import torch
@@ -46,10 +47,10 @@ class HashGridFieldConfig(FieldConfig):
     coarse_to_fine_fraction: float = 0.0
     """Share of the step budget after which every level is open (0: all open from the start)."""
 
-    def active_levels(self, step: int, max_steps: int) -> int:
+    def active_levels(self, step: int, schedule_steps: int) -> int:
         """Open levels at ``step``: ``start_levels``, then linearly more until every level is open at
-        ``coarse_to_fine_fraction * max_steps``."""
-        span = self.coarse_to_fine_fraction * max_steps
+        ``coarse_to_fine_fraction * schedule_steps``."""
+        span = self.coarse_to_fine_fraction * schedule_steps
         if span <= 0 or step >= span:
             return self.n_levels
         return min(self.n_levels, self.start_levels + int((self.n_levels - self.start_levels) * step / span))
@@ -71,11 +72,23 @@ class HashGridFieldConfig(FieldConfig):
 
 
 class Field(nn.Module):
-    """Base class of geometry + colour fields; subclasses set ``geometry_kind`` ("sdf" or "density") and
-    ``feature_dim`` (width of f_shared)."""
+    """Base class of geometry + color fields; subclasses set ``geometry_kind`` ("sdf" or "density") and
+    ``feature_dim`` (width of f_shared).
+
+    The optional capabilities are declared here, with defaults for a field without them; models read the
+    declarations instead of probing for attributes: ``analytic_sdf_gradient`` (``geometry_and_gradient``
+    works), ``has_view_branches`` (the per-view wrapper: ``branches_active``, ``attention_matrix``),
+    ``bound`` and the hooks ``extra_losses``, ``training_callbacks`` and ``diagnostics``."""
 
     geometry_kind: str = "sdf"
     feature_dim: int = 0
+    analytic_sdf_gradient: bool = False
+    """Whether :meth:`geometry_and_gradient` gives the SDF's gradient in the forward pass (False: the model
+    takes the gradient by autograd)."""
+    has_view_branches: bool = False
+    """Whether the field is the view-adaptive wrapper (per-view branches, their phases and attention)."""
+    bound: float | None = None
+    """The field covers [-bound, bound]^3 (a hash grid's extent); None where it is not bounded."""
 
     def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``positions [..., 3]`` -> (SDF or raw density ``[..., 1]``, geometry feature ``[..., G]``)."""
@@ -83,12 +96,17 @@ class Field(nn.Module):
 
     def color_features(self, positions: torch.Tensor, directions: torch.Tensor, normals: torch.Tensor,
                        geo_features: torch.Tensor) -> torch.Tensor:
-        """The shared colour feature f_shared ``[..., feature_dim]``."""
+        """The shared color feature f_shared ``[..., feature_dim]``."""
         raise NotImplementedError
 
     def decode_color(self, features: torch.Tensor) -> torch.Tensor:
         """RGB in [0, 1] ``[..., 3]`` from a feature ``[..., feature_dim]``."""
         raise NotImplementedError
+
+    def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` in one pass;
+        only for fields that declare ``analytic_sdf_gradient``."""
+        raise NotImplementedError(f"{type(self).__name__} has no analytic SDF gradient")
 
     def color(self, positions, directions, normals, geo_features, camera_indices=None,
               weights=None, ray_indices=None) -> dict[str, torch.Tensor]:
@@ -96,13 +114,28 @@ class Field(nn.Module):
         ``weights`` and ``ray_indices`` (``[...]``, None where unknown) are ignored by plain fields."""
         return {"rgb": self.decode_color(self.color_features(positions, directions, normals, geo_features))}
 
-    def update_step(self, step: int, max_steps: int) -> None:
+    def update_step(self, step: int, schedule_steps: int) -> None:
         """Schedules of the field (e.g. coarse-to-fine grid levels), called before each training step
         and when a run is loaded."""
 
     def param_groups(self) -> dict[str, list[nn.Parameter]]:
         """Parameters keyed like the optimizer config."""
         return {"fields": list(self.parameters())}
+
+    def extra_losses(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor] | None = None,
+                     color_loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
+                     ) -> dict[str, torch.Tensor]:
+        """Loss terms of the field's own (e.g. the view-adaptive regularizers) from the model's ``outputs``,
+        the ``batch`` and the model's photometric loss; none by default."""
+        return {}
+
+    def training_callbacks(self) -> list:
+        """Callbacks the trainer runs for the field (e.g. phase switches); none by default."""
+        return []
+
+    def diagnostics(self) -> dict[str, float]:
+        """Scalars worth logging; none by default."""
+        return {}
 
 
 class MLP(nn.Module):

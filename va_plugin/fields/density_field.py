@@ -1,4 +1,4 @@
-"""The InstantNGP-style density field: a hash grid, a small density MLP and a small colour MLP."""
+"""The InstantNGP-style density field: a hash grid, a small density MLP and a small color MLP."""
 
 from __future__ import annotations
 
@@ -37,7 +37,7 @@ def trunc_exp(x: torch.Tensor) -> torch.Tensor:
 
 @dataclass
 class DensityFieldConfig(HashGridFieldConfig):
-    """An NGP field: hash grid -> density MLP -> (raw density, feature); colour MLP on (feature, gamma(d))."""
+    """An NGP field: hash grid -> density MLP -> (raw density, feature); color MLP on (feature, gamma(d))."""
 
     _target: type = field(default_factory=lambda: DensityField)
     hidden_width: int = 64
@@ -45,14 +45,14 @@ class DensityFieldConfig(HashGridFieldConfig):
     hidden_layers: int = 1
     """Hidden layers of the density MLP."""
     geo_feature_dim: int = 15
-    """Width of the geometry feature passed to the colour MLP (InstantNGP: 15)."""
+    """Width of the geometry feature passed to the color MLP (InstantNGP: 15)."""
     direction_frequencies: int = 4
-    """Frequency bands of gamma(d) in the colour MLP; -1 leaves the direction out (view-independent
-    colour, which few input views cannot mislead)."""
+    """Frequency bands of gamma(d) in the color MLP; -1 leaves the direction out (view-independent
+    color, which few input views cannot mislead)."""
     color_width: int = 64
-    """Hidden width of the colour MLP; f_shared has this width."""
+    """Hidden width of the color MLP; f_shared has this width."""
     color_layers: int = 2
-    """Hidden layers of the colour MLP."""
+    """Hidden layers of the color MLP."""
 
 
 class DensityField(Field):
@@ -76,8 +76,8 @@ class DensityField(Field):
         out = self.density_net(self.encoding(positions))
         return out[..., :1], out[..., 1:]
 
-    def update_step(self, step: int, max_steps: int) -> None:
-        self.encoding.set_active_levels(self.config.active_levels(step, max_steps))
+    def update_step(self, step: int, schedule_steps: int) -> None:
+        self.encoding.set_active_levels(self.config.active_levels(step, schedule_steps))
 
     def density(self, positions: torch.Tensor) -> torch.Tensor:
         """Activated density ``[..., 1]`` (>= 0)."""

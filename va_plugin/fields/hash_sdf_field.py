@@ -1,7 +1,7 @@
-"""A hash-grid SDF field: multiresolution hash encoding, a small SDF MLP and a small colour MLP.
+"""A hash-grid SDF field: multiresolution hash encoding, a small SDF MLP and a small color MLP.
 
 The capacity sits in the hash tables, so a step is cheap. The levels open coarse to fine (all open at
-once fit each view with high-frequency noise before the shape is right). The colour is
+once fit each view with high-frequency noise before the shape is right). The color is
 view-independent by default: with few input directions a direction input overfits each view.
 """
 
@@ -17,7 +17,7 @@ from va_plugin.errors import ConfigError
 from va_plugin.fields.base import MLP, Field, HashGridFieldConfig
 from va_plugin.fields.encodings.hash_grid import CPU_CHUNK_POINTS
 from va_plugin.fields.encodings.positional import optional_direction_encoding
-from va_plugin.fields.sdf_field import mlp_with_input_gradient
+from va_plugin.fields.sdf_field import has_analytic_slope, mlp_with_input_gradient
 
 SDF_GRADIENT_KINDS = ("analytic", "finite_difference")
 
@@ -28,7 +28,7 @@ _TETRAHEDRON = ((1.0, -1.0, -1.0), (-1.0, -1.0, 1.0), (-1.0, 1.0, -1.0), (1.0, 1
 
 @dataclass
 class HashSDFFieldConfig(HashGridFieldConfig):
-    """A NeuS field on a hash grid: SDF MLP on (x, hash(x)), colour MLP on (feature, normal[, gamma(d)])."""
+    """A NeuS field on a hash grid: SDF MLP on (x, hash(x)), color MLP on (feature, normal[, gamma(d)])."""
 
     _target: type = field(default_factory=lambda: HashSDFField)
     coarse_to_fine_fraction: float = 0.3
@@ -38,19 +38,19 @@ class HashSDFFieldConfig(HashGridFieldConfig):
     sdf_layers: int = 1
     """Hidden layers of the SDF MLP."""
     geo_feature_dim: int = 15
-    """Width of the geometry feature passed to the colour MLP."""
+    """Width of the geometry feature passed to the color MLP."""
     softplus_beta: float = 100.0
     """Sharpness of the SDF MLP's softplus activations."""
     init_radius: float = 0.5
     """Radius of the sphere the SDF starts as."""
     color_width: int = 64
-    """Hidden width of the colour MLP; f_shared has this width."""
+    """Hidden width of the color MLP; f_shared has this width."""
     color_layers: int = 2
-    """Hidden layers of the colour MLP."""
+    """Hidden layers of the color MLP."""
     use_normal: bool = True
-    """Feed the surface normal to the colour MLP."""
+    """Feed the surface normal to the color MLP."""
     direction_frequencies: int = -1
-    """The view direction in the colour MLP: -1 leaves it out (view-independent colour, the default
+    """The view direction in the color MLP: -1 leaves it out (view-independent color, the default
     for few views), 0 feeds the raw direction, k > 0 adds k frequency bands."""
     sdf_gradient: str = "analytic"
     """"analytic" (the grid's trilinear derivative) or "finite_difference" (four tetrahedral SDF
@@ -107,8 +107,8 @@ class HashSDFField(Field):
             out.bias[0] = -self.sdf_net(self._inputs(on_sphere))[:, 0].mean()
 
     # -- schedule -------------------------------------------------------------------------------
-    def update_step(self, step: int, max_steps: int) -> None:
-        active = self.config.active_levels(step, max_steps)
+    def update_step(self, step: int, schedule_steps: int) -> None:
+        active = self.config.active_levels(step, schedule_steps)
         self.encoding.set_active_levels(active)
 
     def finite_difference_step(self) -> float:
@@ -127,6 +127,15 @@ class HashSDFField(Field):
     def sdf(self, positions: torch.Tensor) -> torch.Tensor:
         """SDF only, ``[..., 1]``."""
         return self.geometry(positions)[0]
+
+    @property
+    def bound(self) -> float:
+        return float(self.config.bound)
+
+    @property
+    def analytic_sdf_gradient(self) -> bool:
+        """Finite differences need only the SDF; the grid's derivative needs the chain rule through the MLP."""
+        return self.config.sdf_gradient == "finite_difference" or has_analytic_slope(self.sdf_net)
 
     def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]``, with a
@@ -157,7 +166,7 @@ class HashSDFField(Field):
         gradient = (probes[..., None] * vertices).sum(-2) / (4.0 * step)
         return sdf, features, gradient
 
-    # -- colour ---------------------------------------------------------------------------------
+    # -- color ---------------------------------------------------------------------------------
     def color_features(self, positions, directions, normals, geo_features) -> torch.Tensor:
         parts = [geo_features]
         if self.config.use_normal:

@@ -1,4 +1,4 @@
-"""The NeuS SDF field: an SDF network with geometric initialisation and a colour network."""
+"""The NeuS SDF field: an SDF network with geometric initialisation and a color network."""
 
 from __future__ import annotations
 
@@ -14,7 +14,7 @@ from va_plugin.fields.encodings.positional import PositionalEncoding
 
 @dataclass
 class SDFFieldConfig(FieldConfig):
-    """A NeuS field: SDF network on gamma(x) and a colour network on (x, normal, gamma(d), feature)."""
+    """A NeuS field: SDF network on gamma(x) and a color network on (x, normal, gamma(d), feature)."""
 
     _target: type = field(default_factory=lambda: SDFField)
     position_frequencies: int = 6
@@ -26,11 +26,11 @@ class SDFFieldConfig(FieldConfig):
     sdf_layers: int = 4
     """Hidden layers of the SDF network."""
     geo_feature_dim: int = 64
-    """Width of the geometry feature passed to the colour network."""
+    """Width of the geometry feature passed to the color network."""
     color_width: int = 128
-    """Hidden width of the colour network; f_shared has this width."""
+    """Hidden width of the color network; f_shared has this width."""
     color_layers: int = 2
-    """Hidden layers of the colour network."""
+    """Hidden layers of the color network."""
     init_radius: float = 0.5
     """Radius of the sphere the SDF starts as (geometric initialisation)."""
     softplus_beta: float = 100.0
@@ -69,6 +69,11 @@ class SDFField(Field):
         out = self.sdf_net(self.position_encoding(positions))
         return out[..., :1], out[..., 1:]
 
+    @property
+    def analytic_sdf_gradient(self) -> bool:
+        """The hand-written chain rule covers the SDF network (its activation and linear output)."""
+        return has_analytic_slope(self.sdf_net)
+
     def geometry_and_gradient(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` in one pass
         (:func:`mlp_with_input_gradient`, pulled back through the encoding): losses on the gradient need
@@ -106,6 +111,15 @@ def mlp_with_input_gradient(net: MLP, inputs: torch.Tensor) -> tuple[torch.Tenso
     for layer, slope in zip(reversed(net.hidden), reversed(slopes)):
         grad = (grad * slope) @ layer.weight
     return out, grad
+
+
+ANALYTIC_ACTIVATIONS = (nn.Softplus, nn.ReLU)
+"""The activations :func:`mlp_with_input_gradient` has the slope of."""
+
+
+def has_analytic_slope(net: MLP) -> bool:
+    """Whether :func:`mlp_with_input_gradient` handles ``net``: a covered activation, a linear output layer."""
+    return net.out_activation is None and isinstance(net.activation, ANALYTIC_ACTIVATIONS)
 
 
 def _activation_and_slope(activation: nn.Module, z: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:

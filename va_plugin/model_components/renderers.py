@@ -1,4 +1,4 @@
-"""Volume rendering: alphas to weights, weights to colours."""
+"""Volume rendering: alphas to weights, weights to colors."""
 
 from __future__ import annotations
 

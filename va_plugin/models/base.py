@@ -5,11 +5,13 @@ from __future__ import annotations
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 from torch import nn
 
 from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
+from va_plugin.fields.base import Field
 from va_plugin.model_components import renderers
 from va_plugin.model_components.losses import psnr_from_mse, rgb_loss
 from va_plugin.rays import RayBundle
@@ -22,7 +24,7 @@ class SceneInfo:
     num_train_views: int
     scene_radius: float
     background: Sequence[float] = (1.0, 1.0, 1.0)
-    max_steps: int = 1000  # where the run's schedules end (the trainer's ``schedule_horizon``)
+    schedule_steps: int = 1000  # where the run's schedules end (the trainer's ``schedule_steps_of``)
     train_cameras: Cameras | None = None  # on the device (the NGP occupancy grid keeps cells they all see)
 
 
@@ -38,9 +40,12 @@ ExtraLoss = Callable[[dict[str, torch.Tensor], dict[str, torch.Tensor], int], di
 
 
 class Model(nn.Module):
-    """Base class of models. Subclasses implement ``get_outputs`` and ``get_loss_dict``."""
+    """Base class of models. Subclasses set ``field`` and implement ``get_outputs`` and ``get_loss_dict``."""
 
     config: ModelConfig
+    field: Field
+    fill_mesh_cavities: bool = False
+    """Whether :func:`va_plugin.export.mesh.extract_mesh` makes enclosed empty space solid (ngp sets it)."""
 
     def __init__(self, config: ModelConfig, scene: SceneInfo) -> None:
         super().__init__()
@@ -56,9 +61,7 @@ class Model(nn.Module):
         """Called by the trainer before each step; schedules read ``self.step``, and the field's own
         schedules (``Field.update_step``) follow."""
         self.step = step
-        field = getattr(self, "field", None)
-        if field is not None:
-            field.update_step(step, self.scene.max_steps)
+        self.field.update_step(step, self.scene.schedule_steps)
 
     def restore_step(self, step: int) -> None:
         """Set the step schedules (``self.step``, the field's) as :meth:`update_step` sets them for step
@@ -72,10 +75,10 @@ class Model(nn.Module):
                       ) -> dict[str, torch.Tensor]:
         raise NotImplementedError
 
-    def composite_other_colours(self, outputs: dict[str, torch.Tensor], color: dict[str, torch.Tensor],
+    def composite_other_colors(self, outputs: dict[str, torch.Tensor], color: dict[str, torch.Tensor],
                                 weights: torch.Tensor, per_ray: Callable[[torch.Tensor], torch.Tensor]
                                 ) -> dict[str, torch.Tensor]:
-        """``outputs`` plus the field's other per-sample outputs besides ``rgb``: colours (``rgb_*``, e.g. the
+        """``outputs`` plus the field's other per-sample outputs besides ``rgb``: colors (``rgb_*``, e.g. the
         canonical or the shared one) composited per ray with ``weights [R, s]``, anything else as it is.
         ``per_ray`` lays a per-sample tensor out as ``[R, s, ...]``."""
         for key, value in color.items():
@@ -90,20 +93,18 @@ class Model(nn.Module):
     def apply_extra_losses(self, losses: dict[str, torch.Tensor], outputs, batch) -> dict[str, torch.Tensor]:
         """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the
         view-adaptive regularizers) and the registered hooks'."""
-        field_losses = getattr(getattr(self, "field", None), "extra_losses", None)
-        if field_losses is not None:
-            losses.update(field_losses(outputs, batch, self.colour_loss))
+        losses.update(self.field.extra_losses(outputs, batch, self.color_loss))
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
         return losses
 
-    def colour_loss(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-        """The model's photometric loss (mean squared error) of rendered against target colours ``[R, 3]``."""
+    def color_loss(self, pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
+        """The model's photometric loss (mean squared error) of rendered against target colors ``[R, 3]``."""
         return rgb_loss(pred, target)
 
     def get_metrics_dict(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]
                          ) -> dict[str, float]:
-        """Training-batch PSNR of the rendered colour."""
+        """Training-batch PSNR of the rendered color."""
         mse = ((outputs["rgb"].detach() - batch["rgb"].detach()) ** 2).mean()
         return {"psnr": float(psnr_from_mse(mse))}
 
@@ -112,14 +113,12 @@ class Model(nn.Module):
 
     def training_callbacks(self) -> list[object]:
         """Callbacks the trainer runs (e.g. phase switches); the model knows nothing of the trainer.
-        By default those of the model's ``field``, if it has any."""
-        make = getattr(getattr(self, "field", None), "training_callbacks", None)
-        return list(make()) if make is not None else []
+        By default those of the model's ``field``."""
+        return list(self.field.training_callbacks())
 
     def diagnostics(self) -> dict[str, float]:
         """Scalars worth logging (e.g. inv_s); by default those of the model's ``field``."""
-        report = getattr(getattr(self, "field", None), "diagnostics", None)
-        return dict(report()) if report is not None else {}
+        return dict(self.field.diagnostics())
 
     def sharpness(self) -> float | None:
         """NeuS's inv_s for the training guard's collapse test; None for models without one."""
@@ -147,6 +146,11 @@ class Model(nn.Module):
         raise NotImplementedError
 
     def surface_color(self, points: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
-        """Canonical RGB ``[n, 3]`` of surface points seen head-on from outside (mesh vertex colours)."""
+        """Canonical RGB ``[n, 3]`` of surface points seen head-on from outside (mesh vertex colors)."""
         raise NotImplementedError
+
+    def prepare_mesh_grid(self, values: np.ndarray, spacing: float) -> np.ndarray:
+        """The grid of :meth:`mesh_field` values (cells ``spacing`` apart) as marching cubes should see it
+        (e.g. ngp's density smoothed in log space); unchanged by default."""
+        return values
 

@@ -53,7 +53,7 @@ class NeuSModelConfig(ModelConfig):
     """Share of the schedule at which ``inv_s_floor`` starts to rise from 0."""
     sdf_gradient: str = "auto"
     """How the SDF's gradient is computed: "autograd" (a double backward), "analytic" (the field's own
-    chain rule next to its forward pass, the same values to rounding; needs ``geometry_and_gradient``),
+    chain rule next to its forward pass, the same values to rounding; needs ``field.analytic_sdf_gradient``),
     or "auto": analytic when the field supports it, else autograd."""
     eikonal_weight: float = 0.1
     """Weight of the eikonal loss."""
@@ -95,11 +95,11 @@ class NeuSModel(Model):
                               f"{config.crossings_samples} and {config.crossings_start}")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
-        if config.sdf_gradient == "analytic" and not hasattr(self.field, "geometry_and_gradient"):
-            raise ConfigError(f"sdf_gradient='analytic' needs a field with geometry_and_gradient; "
+        if config.sdf_gradient == "analytic" and not self.field.analytic_sdf_gradient:
+            raise ConfigError(f"sdf_gradient='analytic' needs a field with an analytic SDF gradient; "
                               f"{type(self.field).__name__} has none (use 'autograd')")
         self.sdf_gradient = config.sdf_gradient if config.sdf_gradient != "auto" else \
-            ("analytic" if _supports_analytic_gradient(self.field) else "autograd")  # "auto" resolved
+            ("analytic" if self.field.analytic_sdf_gradient else "autograd")  # "auto" resolved
         self.variance = SingleVariance(config.variance_init)
         # per batch ray of the last training batch: samples evaluated with gradients (skipped rays count 0),
         # and SDF evaluations of the gradient-free coarse and up-sampling passes
@@ -112,14 +112,14 @@ class NeuSModel(Model):
         cfg = self.config
         if cfg.inv_s_floor <= 0:
             return 0.0
-        start = cfg.inv_s_floor_start * self.scene.max_steps
-        span = max(1.0, self.scene.max_steps - start)
+        start = cfg.inv_s_floor_start * self.scene.schedule_steps
+        span = max(1.0, self.scene.schedule_steps - start)
         return cfg.inv_s_floor * min(1.0, max(0.0, (step - start) / span))
 
     def cos_anneal_ratio(self) -> float:
         if not self.training:
             return 1.0
-        span = self.config.cos_anneal_fraction * self.scene.max_steps
+        span = self.config.cos_anneal_fraction * self.scene.schedule_steps
         return 1.0 if span <= 0 else min(1.0, self.step / span)
 
     def update_step(self, step: int) -> None:
@@ -258,7 +258,7 @@ class NeuSModel(Model):
             "gradients": gradients,
             "inside": (positions.detach().norm(dim=-1) < self.scene.scene_radius),
         }
-        return self.composite_other_colours(outputs, color, weights, unpack)
+        return self.composite_other_colors(outputs, color, weights, unpack)
 
     def get_loss_dict(self, outputs, batch) -> dict[str, torch.Tensor]:
         cfg = self.config
@@ -269,7 +269,7 @@ class NeuSModel(Model):
             loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
         if cfg.normal_weight > 0 and "normal" in batch:
             loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
-        if cfg.crossings_weight > 0 and self.training and self.step >= cfg.crossings_start * self.scene.max_steps:
+        if cfg.crossings_weight > 0 and self.training and self.step >= cfg.crossings_start * self.scene.schedule_steps:
             loss["crossings"] = cfg.crossings_weight * self._crossings(outputs["accumulation"].device)
         return self.apply_extra_losses(loss, outputs, batch)
 
@@ -296,18 +296,6 @@ class NeuSModel(Model):
 
 SDF_GRADIENTS = ("auto", "autograd", "analytic")
 """The values of ``NeuSModelConfig.sdf_gradient``."""
-
-
-def _supports_analytic_gradient(field) -> bool:
-    """Whether ``field.geometry_and_gradient`` exists and handles this field's network (its activations)."""
-    if not hasattr(field, "geometry_and_gradient"):
-        return False
-    try:
-        with torch.no_grad():
-            field.geometry_and_gradient(torch.zeros(1, 3, device=next(field.parameters()).device))
-    except NotImplementedError:
-        return False
-    return True
 
 
 PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")

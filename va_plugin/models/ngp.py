@@ -75,7 +75,7 @@ class NGPModel(Model):
         self.field = config.field.setup_for_scene(scene)
         if self.field.geometry_kind != "density":
             raise ConfigError("the ngp model needs a field whose geometry is a density")
-        bound = getattr(self.field, "bound", None)
+        bound = self.field.bound
         if bound is not None and bound < scene.scene_radius:
             raise ConfigError(f"field.bound ({bound}) must be at least the scene radius ({scene.scene_radius})")
         self.occupancy_grid: OccupancyGrid | None = \
@@ -169,7 +169,7 @@ class NGPModel(Model):
         if self.training and self.config.distortion_weight > 0:
             scale = 1.0 / (2.0 * self.scene.scene_radius)  # distances in units of the bound's diameter
             outputs["distortion"] = distortion(weights, samples.t_mid * scale, samples.deltas * scale)
-        return self.composite_other_colours(outputs, color, weights, lambda value: scatter(value, keep))
+        return self.composite_other_colors(outputs, color, weights, lambda value: scatter(value, keep))
 
     def get_loss_dict(self, outputs, batch) -> dict[str, torch.Tensor]:
         cfg = self.config

@@ -27,14 +27,14 @@ class PipelineConfig(InstantiateConfig):
 
 
 class Pipeline(nn.Module):
-    def __init__(self, config: PipelineConfig, device: torch.device, max_steps: int) -> None:
+    def __init__(self, config: PipelineConfig, device: torch.device, schedule_steps: int) -> None:
         super().__init__()
         self.config = config
         self.device = device
         self.datamanager = config.datamanager.setup(device=device)
         scene = SceneInfo(num_train_views=self.datamanager.num_train_views,
                           scene_radius=self.datamanager.scene_radius,
-                          background=self.datamanager.background, max_steps=max_steps,
+                          background=self.datamanager.background, schedule_steps=schedule_steps,
                           train_cameras=self.datamanager.cameras)
         self.model = config.model.setup(scene=scene).to(device)
 

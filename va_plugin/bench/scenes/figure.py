@@ -11,7 +11,7 @@ import numpy as np
 from va_plugin.data.images import read_image, write_image
 from va_plugin.errors import DataError
 
-LABEL_COLOUR = (30, 30, 30)
+LABEL_COLOR = (30, 30, 30)
 
 
 def _tile(path: Path, size: int) -> np.ndarray:
@@ -28,7 +28,7 @@ def _label(tile: np.ndarray, text: str) -> np.ndarray:
     """Write ``text`` in the top-left corner of an 8-bit tile."""
     out = np.ascontiguousarray(tile.copy())
     scale = max(out.shape[0] / 640.0, 0.3)
-    cv2.putText(out, text, (4, int(16 * scale / 0.4)), cv2.FONT_HERSHEY_SIMPLEX, scale, LABEL_COLOUR, 1,
+    cv2.putText(out, text, (4, int(16 * scale / 0.4)), cv2.FONT_HERSHEY_SIMPLEX, scale, LABEL_COLOR, 1,
                 cv2.LINE_AA)
     return out
 

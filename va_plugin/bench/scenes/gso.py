@@ -65,7 +65,7 @@ def load_mesh(root: Path, name: str) -> trimesh.Trimesh:
 
 
 def resize_rgba(image: np.ndarray, resolution: int) -> np.ndarray:
-    """Area-resample an RGBA image ``[H, W, 4]`` with premultiplied colour (no dark fringes)."""
+    """Area-resample an RGBA image ``[H, W, 4]`` with premultiplied color (no dark fringes)."""
     if image.shape[0] == resolution and image.shape[1] == resolution:
         return image
     premultiplied = np.concatenate([image[:, :, :3] * image[:, :, 3:], image[:, :, 3:]], -1)

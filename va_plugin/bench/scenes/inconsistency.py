@@ -4,7 +4,7 @@ Kinds (switchable separately):
 
 * ``geometric``: a smooth low-frequency displacement of the mesh (rendered sources) or of the image
   (image sources).
-* ``appearance``: a slight blur, a per-view colour gain and offset, and a few hallucinated texture
+* ``appearance``: a slight blur, a per-view color gain and offset, and a few hallucinated texture
   blobs, on the object only.
 * ``pose``: the view seen from a slightly wrong orbit position; the written camera stays nominal.
 
@@ -38,8 +38,8 @@ class Amplitudes:
     modes: int = 4                    # sine modes summed in the field
     orbit_deg: float = 0.8            # std of the azimuth and elevation errors
     roll_deg: float = 0.5             # std of the roll about the optical axis
-    gain: float = 0.04                # std of the per-channel colour gain around 1
-    offset: float = 0.015             # std of the per-channel colour offset
+    gain: float = 0.04                # std of the per-channel color gain around 1
+    offset: float = 0.015             # std of the per-channel color offset
     blobs: int = 3                    # hallucinated blobs per view
     blob_opacity: float = 0.8
     blob_radius: tuple[float, float] = (0.04, 0.08)  # as a fraction of the image side
@@ -122,13 +122,13 @@ class DisplacementField:
 
 @dataclass
 class Blob:
-    """A hallucinated texture patch: plausible colours taken from elsewhere on the object, in a blotchy
+    """A hallucinated texture patch: plausible colors taken from elsewhere on the object, in a blotchy
     pattern, inside a ragged soft disc."""
 
     where: float                  # quantile in [0, 1) of the object's pixels (row-major): the centre
     radius: float                 # fraction of the image side
-    sources: np.ndarray           # [2] quantiles of object pixels whose colours the patch paints with
-    tint: np.ndarray              # [2, 3] shifts of those colours
+    sources: np.ndarray           # [2] quantiles of object pixels whose colors the patch paints with
+    tint: np.ndarray              # [2, 3] shifts of those colors
     waves: np.ndarray             # [3, 3] per wave: angle, period (fraction of the radius), phase
     ragged: np.ndarray            # [3] amplitude, lobes, phase of the outline's wobble
 
@@ -164,8 +164,8 @@ class ViewPerturbation:
         if self.orbit_deg is not None:
             out["pose_error_deg"] = dict(zip(("azimuth", "elevation", "roll"), map(_round, self.orbit_deg)))
         if self.gain is not None:
-            out["colour_gain"] = [_round(g) for g in self.gain]
-            out["colour_offset"] = [_round(o) for o in self.offset]
+            out["color_gain"] = [_round(g) for g in self.gain]
+            out["color_offset"] = [_round(o) for o in self.offset]
             out["blobs"] = len(self.blobs)
             out["blur_sigma_px_at_256"] = _round(self.blur * 256.0)
         return out
@@ -214,20 +214,20 @@ def _blob_weight(blob: Blob, centre: tuple[float, float], height: int, width: in
     return np.clip(1.0 - r * r, 0.0, 1.0) ** 2
 
 
-def _blob_colour(blob: Blob, palette: np.ndarray, height: int, width: int) -> np.ndarray:
-    """Blotchy two-colour texture ``[H, W, 3]``; ``palette [2, 3]`` are the borrowed colours."""
+def _blob_color(blob: Blob, palette: np.ndarray, height: int, width: int) -> np.ndarray:
+    """Blotchy two-color texture ``[H, W, 3]``; ``palette [2, 3]`` are the borrowed colors."""
     rows, cols = np.mgrid[0:height, 0:width].astype(np.float32)
     radius = blob.radius * max(height, width)
     field = np.zeros((height, width), np.float32)
     for angle, period, phase in blob.waves:
         field += np.sin(2.0 * np.pi * (cols * np.cos(angle) + rows * np.sin(angle)) / (period * radius) + phase)
     t = (0.5 + 0.5 * np.tanh(2.0 * field))[:, :, None]
-    colours = np.clip(palette + blob.tint, 0.0, 1.0)
-    return (1.0 - t) * colours[0] + t * colours[1]
+    colors = np.clip(palette + blob.tint, 0.0, 1.0)
+    return (1.0 - t) * colors[0] + t * colors[1]
 
 
 def soften(rgba: np.ndarray, sigma_px: float) -> np.ndarray:
-    """The colour ``[H, W, 3]`` of an RGBA image blurred inside the object (premultiplied, so the
+    """The color ``[H, W, 3]`` of an RGBA image blurred inside the object (premultiplied, so the
     background does not bleed in); alpha is left to the caller."""
     if sigma_px <= 0:
         return rgba[:, :, :3]
@@ -238,7 +238,7 @@ def soften(rgba: np.ndarray, sigma_px: float) -> np.ndarray:
 
 
 def apply_appearance(rgba: np.ndarray, p: ViewPerturbation) -> np.ndarray:
-    """Colour gain/offset and texture blobs on the object of a straight-alpha image ``[H, W, 4]``."""
+    """Color gain/offset and texture blobs on the object of a straight-alpha image ``[H, W, 4]``."""
     if p.gain is None:
         return rgba
     h, w = rgba.shape[:2]
@@ -256,7 +256,7 @@ def apply_appearance(rgba: np.ndarray, p: ViewPerturbation) -> np.ndarray:
             break
         palette = np.stack([rgb[tuple(pick(q))] for q in blob.sources])
         weight = (p.blob_opacity * _blob_weight(blob, tuple(pick(blob.where)), h, w))[:, :, None] * on_object
-        rgb = rgb * (1.0 - weight) + _blob_colour(blob, palette, h, w) * weight
+        rgb = rgb * (1.0 - weight) + _blob_color(blob, palette, h, w) * weight
     return np.concatenate([rgb, alpha], -1).astype(np.float32)
 
 
@@ -282,7 +282,7 @@ def compose_maps(outer: np.ndarray, inner: np.ndarray) -> np.ndarray:
 
 
 def remap_rgba(rgba: np.ndarray, coords: np.ndarray) -> np.ndarray:
-    """Resample a straight-alpha image ``[H, W, 4]`` at ``coords [H, W, 2]`` (premultiplied, so the colour of
+    """Resample a straight-alpha image ``[H, W, 4]`` at ``coords [H, W, 2]`` (premultiplied, so the color of
     the background never bleeds into the object's edge)."""
     premultiplied = np.concatenate([rgba[:, :, :3] * rgba[:, :, 3:], rgba[:, :, 3:]], -1).astype(np.float32)
     out = cv2.remap(premultiplied, coords[:, :, 0].astype(np.float32), coords[:, :, 1].astype(np.float32),

@@ -1,7 +1,7 @@
 """Textured mesh files (OBJ, PLY, GLB...) as benchmark objects.
 
 A mesh is turned z-up (``up_axis``), turned about z by ``yaw_deg`` and normalised to fit [-0.5, 0.5]^3
-(largest side 1, centred). Its albedo is the texture at the hit's UV, else the vertex colours, else grey.
+(largest side 1, centred). Its albedo is the texture at the hit's UV, else the vertex colors, else grey.
 """
 
 from __future__ import annotations
@@ -50,9 +50,13 @@ def normalise_vertices(vertices: np.ndarray) -> np.ndarray:
 def find_texture(path: Path, mesh: trimesh.Trimesh) -> Path | None:
     """The texture image of a mesh file: the material's own file, ``<stem>.png`` or ``<stem>_texture.png``,
     or else the only image in the file's folder."""
-    material = getattr(getattr(mesh, "visual", None), "material", None)
-    own = getattr(material, "image", None)
-    own_name = getattr(own, "filename", None) if own is not None else None
+    material = mesh.visual.material if isinstance(mesh.visual, trimesh.visual.TextureVisuals) else None
+    own = material.image if isinstance(material, trimesh.visual.material.SimpleMaterial) else None
+    own_name = None
+    if own is not None:  # a PIL image; one read from a file knows its name
+        from PIL import ImageFile
+
+        own_name = own.filename if isinstance(own, ImageFile.ImageFile) else None
     if own_name and Path(own_name).is_file():
         return Path(own_name)
     for name in (path.stem, f"{path.stem}_texture"):
@@ -76,12 +80,12 @@ def _load_mesh(path: Path) -> trimesh.Trimesh:
 
 
 def _albedo(mesh: trimesh.Trimesh, texture: Path | None) -> Albedo:
-    uv = getattr(mesh.visual, "uv", None)
+    uv = mesh.visual.uv if isinstance(mesh.visual, trimesh.visual.TextureVisuals) else None
     if texture is not None and uv is not None and len(uv) == len(mesh.vertices):
         return UVTexture(uv, read_image(texture)[:, :, :3])
-    if getattr(mesh.visual, "kind", None) == "vertex":
-        colours = np.asarray(mesh.visual.vertex_colors[:, :3], dtype=np.float32) / 255.0
-        return lambda hits: np.einsum("nk,nkc->nc", hits.barycentric, colours[hits.corners])
+    if isinstance(mesh.visual, trimesh.visual.ColorVisuals) and mesh.visual.kind == "vertex":
+        colors = np.asarray(mesh.visual.vertex_colors[:, :3], dtype=np.float32) / 255.0
+        return lambda hits: np.einsum("nk,nkc->nc", hits.barycentric, colors[hits.corners])
     return lambda hits: np.broadcast_to(PLAIN_GREY, (len(hits.points), 3)).copy()
 
 

@@ -2,7 +2,7 @@
 
 Every object fits in the box [-0.5, 0.5]^3 (SyncDreamer's normalisation), z up, and is chosen to stress
 one or more hard cases of reconstruction: holes through the body (genus > 0), thin parts, concavities,
-sharp edges, and colour patterns with fine detail. Camera 0 of the rig looks from +x, so objects with a
+sharp edges, and color patterns with fine detail. Camera 0 of the rig looks from +x, so objects with a
 front (the robot's face) face +x, as the conditioning view of a generator would see them.
 """
 
@@ -41,7 +41,7 @@ def _rgb(*values: float) -> np.ndarray:
 
 
 def _mix(a: np.ndarray, b: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """Per-point blend ``[n, 3]`` of colours ``a`` and ``b`` (each ``[3]`` or ``[n, 3]``) by ``t [n]``."""
+    """Per-point blend ``[n, 3]`` of colors ``a`` and ``b`` (each ``[3]`` or ``[n, 3]``) by ``t [n]``."""
     t = t.astype(np.float32)[:, None]
     return (1.0 - t) * a + t * b
 
@@ -51,8 +51,8 @@ def _checker(p: np.ndarray, size: float) -> np.ndarray:
     return (np.floor(p / size).sum(-1) % 2).astype(np.float32)
 
 
-def _where(mask: np.ndarray, colour: np.ndarray, other: np.ndarray) -> np.ndarray:
-    return np.where(mask[:, None], colour, other)
+def _where(mask: np.ndarray, color: np.ndarray, other: np.ndarray) -> np.ndarray:
+    return np.where(mask[:, None], color, other)
 
 
 # --- mug: genus 1, a concavity ---------------------------------------------------------------------------
@@ -108,9 +108,9 @@ def knot_texture(p: np.ndarray) -> np.ndarray:
     _, nearest = cKDTree(curve).query(p, k=1)
     s = t[nearest] * 36.0
     band = (np.floor(s) % 2).astype(np.float32)
-    colour = _mix(_rgb(0.95, 0.75, 0.1), _rgb(0.1, 0.55, 0.45), band)
+    color = _mix(_rgb(0.95, 0.75, 0.1), _rgb(0.1, 0.55, 0.45), band)
     seam = np.abs(s - np.round(s)) < 0.08
-    return _where(seam, _rgb(0.08, 0.08, 0.1), colour)
+    return _where(seam, _rgb(0.08, 0.08, 0.1), color)
 
 
 # --- chair: thin legs, a slatted back (holes) ---------------------------------------------------------------
@@ -159,13 +159,13 @@ def bowl_texture(p: np.ndarray) -> np.ndarray:
     centre = (np.floor(p / cell) + 0.5) * cell
     dots = (length(p - centre) < 0.018).astype(np.float32)
     outer = _mix(_rgb(0.85, 0.45, 0.2), _rgb(0.98, 0.95, 0.85), dots)
-    colour = _where(inside, inner, outer)
-    return _where(q[:, 2] > -0.02, _rgb(0.1, 0.1, 0.12), colour)
+    color = _where(inside, inner, outer)
+    return _where(q[:, 2] > -0.02, _rgb(0.1, 0.1, 0.12), color)
 
 
 # --- blocks: sharp edges and corners, overhangs --------------------------------------------------------------
 
-BLOCKS = [  # centre, half extents, yaw in degrees, checker colours; each sinks 1 cm into the one below
+BLOCKS = [  # centre, half extents, yaw in degrees, checker colors; each sinks 1 cm into the one below
     ((0.0, 0.0, -0.32), (0.36, 0.24, 0.15), 0.0, (_rgb(0.9, 0.9, 0.88), _rgb(0.2, 0.35, 0.7))),
     ((0.04, 0.02, -0.04), (0.2, 0.2, 0.14), 30.0, (_rgb(0.95, 0.8, 0.2), _rgb(0.7, 0.15, 0.1))),
     ((0.12, -0.08, 0.25), (0.12, 0.22, 0.16), -20.0, (_rgb(0.2, 0.6, 0.3), _rgb(0.95, 0.95, 0.95))),
@@ -177,16 +177,16 @@ def blocks_sdf(p: np.ndarray) -> np.ndarray:
 
 
 def blocks_texture(p: np.ndarray) -> np.ndarray:
-    """A checker of 5 cm cells in each block's own frame and colours, offset so no face lies on a cell border."""
-    colour = np.zeros((len(p), 3), np.float32)
+    """A checker of 5 cm cells in each block's own frame and colors, offset so no face lies on a cell border."""
+    color = np.zeros((len(p), 3), np.float32)
     best = np.full(len(p), np.inf, np.float32)
     for centre, half, yaw, (a, b) in BLOCKS:
         local = to_local(p, centre, yaw)
         dist = np.abs(sd_box(local, half))  # the surface point belongs to the block it lies on
         closer = dist < best
-        colour[closer] = _mix(a, b, _checker(local[closer] + 1.025, 0.05))
+        color[closer] = _mix(a, b, _checker(local[closer] + 1.025, 0.05))
         best = np.minimum(best, dist)
-    return colour
+    return color
 
 
 # --- lamp: a thin arm and a hollow shade -------------------------------------------------------------------
@@ -211,7 +211,7 @@ def lamp_texture(p: np.ndarray) -> np.ndarray:
     """Dark base with fine turned rings, grey arm, orange shade with thin stripes, pale inside, white bulb."""
     base_r = length(p[:, :2] - [-0.2, 0.0])
     base = _mix(_rgb(0.15, 0.15, 0.18), _rgb(0.35, 0.35, 0.4), (np.sin(base_r * 200.0) > 0).astype(np.float32))
-    colour = _where(p[:, 2] < -0.4, base, np.broadcast_to(_rgb(0.6, 0.62, 0.65), p.shape))
+    color = _where(p[:, 2] < -0.4, base, np.broadcast_to(_rgb(0.6, 0.62, 0.65), p.shape))
     s = p - np.asarray(SHADE_CENTRE, dtype=p.dtype)
     angle = np.arctan2(s[:, 1], s[:, 0])
     stripes = (np.sin(angle * 24.0) > 0.6).astype(np.float32)
@@ -219,9 +219,9 @@ def lamp_texture(p: np.ndarray) -> np.ndarray:
     inner = sd_cone_frustum(s - [0.0, 0.0, -0.035], 0.18, 0.04, 0.12)
     shell = subtract(sd_cone_frustum(s, 0.2, 0.06, 0.12), inner)
     on_shade = (np.abs(shell) < 0.01) & (length(s[:, :2]) > 0.025)  # not the stem through its top
-    colour = _where(on_shade, _where(inner < 0.005, _rgb(0.98, 0.92, 0.7), outside), colour)
+    color = _where(on_shade, _where(inner < 0.005, _rgb(0.98, 0.92, 0.7), outside), color)
     bulb = length(s - [0.0, 0.0, -0.03]) < 0.06
-    return _where(bulb, _rgb(1.0, 1.0, 0.95), colour)
+    return _where(bulb, _rgb(1.0, 1.0, 0.95), color)
 
 
 # --- robot: a character-like figure with thin limbs and a face --------------------------------------------
@@ -240,19 +240,19 @@ def robot_sdf(p: np.ndarray) -> np.ndarray:
 
 def robot_texture(p: np.ndarray) -> np.ndarray:
     """Teal body with a chest panel of small buttons, a face (eyes, mouth) looking at +x, red antenna tip."""
-    colour = _mix(_rgb(0.2, 0.6, 0.65), _rgb(0.15, 0.45, 0.5), (np.floor(p[:, 2] * 30.0) % 2).astype(np.float32))
+    color = _mix(_rgb(0.2, 0.6, 0.65), _rgb(0.15, 0.45, 0.5), (np.floor(p[:, 2] * 30.0) % 2).astype(np.float32))
     front = p[:, 0] > 0.1
     panel = front & (np.abs(p[:, 1]) < 0.1) & (np.abs(p[:, 2] + 0.02) < 0.1)
     cell = 0.05
     centre = (np.floor(p[:, 1:] / cell) + 0.5) * cell
     buttons = length(p[:, 1:] - centre) < 0.013
-    button_colour = np.where((np.floor(p[:, 1:2] / cell) % 2) == 0, _rgb(0.9, 0.2, 0.15), _rgb(0.95, 0.85, 0.2))
-    colour = _where(panel, _where(buttons, button_colour, _rgb(0.85, 0.87, 0.9)), colour)
+    button_color = np.where((np.floor(p[:, 1:2] / cell) % 2) == 0, _rgb(0.9, 0.2, 0.15), _rgb(0.95, 0.85, 0.2))
+    color = _where(panel, _where(buttons, button_color, _rgb(0.85, 0.87, 0.9)), color)
     face = (p[:, 0] > 0.09) & (p[:, 2] > 0.19) & (p[:, 2] < 0.36)
     eyes = (length(np.stack([np.abs(p[:, 1]) - 0.05, p[:, 2] - 0.3], -1)) < 0.025)
     mouth = (np.abs(p[:, 2] - 0.23) < 0.008) & (np.abs(p[:, 1]) < 0.06)
-    colour = _where(face, _where(eyes | mouth, _rgb(0.05, 0.05, 0.08), _rgb(0.9, 0.9, 0.88)), colour)
-    return _where(p[:, 2] > 0.43, _rgb(0.9, 0.1, 0.1), colour)
+    color = _where(face, _where(eyes | mouth, _rgb(0.05, 0.05, 0.08), _rgb(0.9, 0.9, 0.88)), color)
+    return _where(p[:, 2] > 0.43, _rgb(0.9, 0.1, 0.1), color)
 
 
 @dataclass

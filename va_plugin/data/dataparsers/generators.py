@@ -1,7 +1,7 @@
 """Dataparsers for the raw outputs of multi-view generators: SyncDreamer, Zero123++ and Wonder3D.
 
 Each reads the generator's file layout, gives its views the generator's fixed cameras
-(:mod:`va_plugin.data.rigs`), finds a mask per view (the user's masks, else alpha, else a colour key:
+(:mod:`va_plugin.data.rigs`), finds a mask per view (the user's masks, else alpha, else a color key:
 :mod:`va_plugin.data.foreground`) and composites the views on the background. With ``normalize =
 "silhouettes"`` the cameras are moved and scaled so the masks' visual hull fills the unit box; the hull's
 per-view silhouette IoU is kept in the metadata as a check of the rig.
@@ -22,7 +22,7 @@ import torch
 from va_plugin.cameras import Cameras
 from va_plugin.data import rigs
 from va_plugin.data.dataparsers.base import DataParser, DataParserConfig, DataparserOutputs, rescale_views
-from va_plugin.data.foreground import ColourKey, check_masks, colour_key_mask, composite, mask_from_image
+from va_plugin.data.foreground import ColorKey, check_masks, color_key_mask, composite, mask_from_image
 from va_plugin.data.images import read_image, split_alpha
 from va_plugin.data.visual_hull import normalise_cameras, unit_box_transform, visual_hull
 from va_plugin.errors import ConfigError, DataError
@@ -66,9 +66,9 @@ class GeneratorDataParserConfig(DataParserConfig):
     scene_radius: float = 0.9
     """Radius of the bounding sphere; the object is brought into the unit box, whose corners are at 0.87."""
     masks: Path | None = None
-    """Masks that override the colour key and any alpha: a folder with one image per view (view order), or
+    """Masks that override the color key and any alpha: a folder with one image per view (view order), or
     one image with the same layout as the input. White (or opaque) is the object."""
-    colour_key: ColourKey = field(default_factory=ColourKey)
+    color_key: ColorKey = field(default_factory=ColorKey)
     """How the background is keyed out of views without alpha."""
     normalize: str = "rig"
     """"rig": trust the generator's documented object scale; "silhouettes": centre and scale the visual
@@ -163,7 +163,7 @@ class GeneratorDataParser(DataParser):
             return self._views
         tiles, names, paths = self.read_tiles()
         size = tiles[0].shape[0]
-        key = self.config.colour_key
+        key = self.config.color_key
         background = self.config.background
         if self.config.masks is not None:
             masks = self._user_masks(len(tiles), size)
@@ -178,11 +178,11 @@ class GeneratorDataParser(DataParser):
         else:
             if all(t.shape[2] == 4 for t in tiles):
                 warnings.warn(f"{self.config.data}: the alpha channel is opaque everywhere, so it holds no "
-                              "mask; the background is keyed out by its colour instead (or pass --masks)", stacklevel=2)
+                              "mask; the background is keyed out by its color instead (or pass --masks)", stacklevel=2)
             rgb = [t[:, :, :3] for t in tiles]
-            masks = [colour_key_mask(im, key, where=n) for im, n in zip(rgb, names)]
+            masks = [color_key_mask(im, key, where=n) for im, n in zip(rgb, names)]
             images = [composite(im, m, background) for im, m in zip(rgb, masks)]
-            source = "colour key"
+            source = "color key"
         masks_np = np.stack(masks).astype(np.float32)
         cameras = self.rig(size)
         cameras, hull_info = self._place(cameras, masks_np)

@@ -46,7 +46,7 @@ class PositionalEncoding(nn.Module):
 
 
 def optional_direction_encoding(frequencies: int) -> PositionalEncoding | None:
-    """A colour network's view-direction encoding from its config value: -1 leaves the direction out
+    """A color network's view-direction encoding from its config value: -1 leaves the direction out
     (None), 0 feeds the raw direction, k > 0 adds k frequency bands."""
     if frequencies < -1:
         raise ConfigError("field.direction_frequencies must be -1 (no direction), 0 or a positive count")
