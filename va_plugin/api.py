@@ -256,7 +256,8 @@ def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRu
         pipeline.model.load_state_dict(state["model"])
     except RuntimeError as exc:
         raise CheckpointError(f"{state['path']} does not fit its own config ({str(exc).splitlines()[0]})") from None
-    pipeline.model.update_step(int(state["step"]))
+    # the schedules of the run's last trained step, as the trainer left them (no parameter is touched)
+    pipeline.model.restore_step(max(int(state["step"]) - 1, 0))
     pipeline.model.eval()
     return LoadedRun(Path(run), pipeline, state)
 
