@@ -43,7 +43,7 @@ setup(
             "va-eval = va_plugin.cli.eval:main",
             "va-demo = va_plugin.cli.demo:main",
             "va-recon = va_plugin.cli.recon:main",
-            "va-batch = va_plugin.batch.cli:main",
+            "va-batch = va_plugin.cli.batch:main",
         ],
         "va_plugin.methods": METHODS,
     },

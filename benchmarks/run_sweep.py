@@ -26,8 +26,6 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from va_plugin.bench.cli import Experiment, axis_values, paired_axis_rows
-from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.presets import BACKBONE_TITLES
 from va_plugin.bench.report import (
     axis_table,
@@ -42,6 +40,8 @@ from va_plugin.bench.report import (
     write_outputs,
 )
 from va_plugin.bench.rows import RowSpec
+from va_plugin.cli.bench import Experiment, axis_values, paired_axis_rows
+from va_plugin.cli.bench import main as bench_main
 
 
 def add_arguments(parser) -> None:

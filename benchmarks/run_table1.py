@@ -19,10 +19,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from va_plugin.bench.cli import Experiment, paired_rows
-from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.report import delta_table, plot_time_curves, report_sections, write_outputs
 from va_plugin.bench.rows import RowSpec, scene_of
+from va_plugin.cli.bench import Experiment, paired_rows
+from va_plugin.cli.bench import main as bench_main
 
 PAPER_TABLE1 = {
     "ngp": {"original": {"psnr": 20.04, "ssim": 0.768, "lpips": 0.159, "cd": 0.0230, "iou": 0.5169},

@@ -19,10 +19,10 @@ import sys
 from pathlib import Path
 from typing import Any
 
-from va_plugin.bench.cli import Experiment, axis_values, paired_axis_rows
-from va_plugin.bench.cli import main as bench_main
 from va_plugin.bench.report import axis_table, plot_against, report_sections, write_outputs
 from va_plugin.bench.rows import RowSpec
+from va_plugin.cli.bench import Experiment, axis_values, paired_axis_rows
+from va_plugin.cli.bench import main as bench_main
 
 
 def add_arguments(parser) -> None:

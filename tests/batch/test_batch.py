@@ -13,7 +13,7 @@ from pathlib import Path
 
 import pytest
 
-from va_plugin.batch import cli
+from va_plugin.cli import batch as cli
 
 REPO = Path(__file__).resolve().parents[2]
 TINY = ["--steps", "3", "--mesh-resolution", "24", "--eval-max-views", "1", "--eval-samples", "2000",
@@ -95,7 +95,7 @@ def _alive(pid: int) -> bool:
 
 def test_a_killed_batch_resumes_to_the_same_summary(inputs, reference, tmp_path):
     out = tmp_path / "out"
-    command = [sys.executable, "-m", "va_plugin.batch.cli", str(inputs), "--method", "neus", "--out", str(out),
+    command = [sys.executable, "-m", "va_plugin.cli.batch", str(inputs), "--method", "neus", "--out", str(out),
                "--workers", "2", *TINY]
     proc = subprocess.Popen(command, cwd=REPO, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
     manifest = out / "manifest.jsonl"

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from va_plugin.batch import cli
 from va_plugin.batch.inputs import find_objects
 from va_plugin.batch.manifest import MANIFEST_FILE, Manifest
 from va_plugin.batch.summary import contact_sheet, write_summary
+from va_plugin.cli import batch as cli
 from va_plugin.data.images import write_image
 from va_plugin.errors import ConfigError
 

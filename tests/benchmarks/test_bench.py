@@ -9,12 +9,12 @@ import math
 import pytest
 from bench_scripts import scripts  # noqa: F401  (fixture)
 
-from va_plugin.bench import cli as bench_cli
 from va_plugin.bench.catalog import SceneSpec, expand_scene_names, input_error
 from va_plugin.bench.presets import get_preset
 from va_plugin.bench.report import delta_table, metric_delta, summary_table
 from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, scene_of
 from va_plugin.bench.store import ResultStore
+from va_plugin.cli import bench as bench_cli
 from va_plugin.config import to_dict
 from va_plugin.errors import ConfigError, VAError
 
@@ -22,7 +22,7 @@ SMOKE = get_preset("smoke")
 
 
 def args_for(script, *extra):
-    from va_plugin.bench.cli import build_parser
+    from va_plugin.cli.bench import build_parser
 
     return build_parser(script.EXPERIMENT).parse_args(["--preset", "smoke", *extra])
 

@@ -11,9 +11,9 @@ import pytest
 import torch
 from bench_scripts import scripts  # noqa: F401  (fixture)
 
-from va_plugin.bench import cli as bench_cli
 from va_plugin.bench import parallel
 from va_plugin.bench.report import EXTRA_FIELDS, FIELDS
+from va_plugin.cli import bench as bench_cli
 
 METHODS = {"neus", "va-neus", "ngp", "va-ngp"}
 METRICS = ("psnr", "ssim", "lpips", "cd", "iou", "fscore")
