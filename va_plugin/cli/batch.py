@@ -25,6 +25,7 @@ from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_er
 from va_plugin.cli.train import add_object_options
 from va_plugin.errors import ConfigError
 from va_plugin.export.texture import check_texture_size
+from va_plugin.utils.progress import progress_bar
 
 EXIT_SOME_FAILED = 1
 
@@ -127,7 +128,7 @@ def main(argv: list[str] | None = None) -> int:
               else f"{min(workers, max(1, len(jobs)))} worker(s) x {args.threads} thread(s)")
     print(f"va-batch: {len(objects)} objects, {len(objects) - len(jobs)} already done, {len(jobs)} to run on "
           f"{engine}; {args.method} -> {out}", file=sys.stderr)
-    bar = tqdm(total=len(objects), initial=len(objects) - len(jobs), unit="object", desc="va-batch",
+    bar = progress_bar(total=len(objects), initial=len(objects) - len(jobs), unit="object", desc="va-batch",
                disable=args.no_progress, dynamic_ncols=True)
 
     def on_done(record: dict[str, Any]) -> None:

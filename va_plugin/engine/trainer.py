@@ -26,6 +26,7 @@ from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.pipelines.base import PipelineConfig
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.memory import keep_freed_memory
+from va_plugin.utils.progress import progress_bar
 from va_plugin.utils.stages import stage, timed
 
 CHECKPOINT_DIR = "checkpoints"
@@ -401,7 +402,7 @@ class Trainer:
         self._write_config()
         if self.step == 0:
             self.pipeline.datamanager.save_mask_picture(self.run_dir)
-        bar = tqdm(total=cfg.max_steps, initial=self.step, disable=not cfg.progress, dynamic_ncols=True,
+        bar = progress_bar(total=cfg.max_steps, initial=self.step, disable=not cfg.progress, dynamic_ncols=True,
                    desc=cfg.method_name, leave=True)
         record: dict[str, Any] = {}
         recent: list[float] = []

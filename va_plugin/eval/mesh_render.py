@@ -6,7 +6,6 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from tqdm import tqdm
 
 from va_plugin.cameras import Cameras
 from va_plugin.data.images import write_image
@@ -15,6 +14,7 @@ from va_plugin.eval.evaluate import image_metrics
 from va_plugin.export.render import turntable_cameras, write_video
 from va_plugin.export.views import bilinear
 from va_plugin.raycast import MeshRenderer, SurfaceHits
+from va_plugin.utils.progress import progress_bar
 
 
 class UnlitMeshRenderer(MeshRenderer):
@@ -94,7 +94,7 @@ def textured_turntable(textured, out_dir: Path, n_frames: int = 24, resolution: 
     renderer = textured_renderer(textured)
     cameras = turntable_cameras(n_frames, resolution)
     frames = [render_on_background(renderer, cameras, k)
-              for k in tqdm(range(n_frames), desc="turntable", disable=not progress)]
+              for k in progress_bar(range(n_frames), desc="turntable", disable=not progress)]
     step = max(1, n_frames // 4)
     write_image(out_dir / "turntable.png", np.concatenate(frames[::step][:4], axis=1))
     return write_video(frames, out_dir / "turntable.mp4")

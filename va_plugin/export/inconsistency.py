@@ -6,9 +6,9 @@ from __future__ import annotations
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from va_plugin.export.render import render_view
+from va_plugin.utils.progress import progress_bar
 
 
 @torch.no_grad()
@@ -24,7 +24,7 @@ def inconsistency_maps(pipeline, scale: float = 0.5, progress: bool = False) -> 
     out = []
     try:
         field.also_canonical = True  # one pass per view renders both images
-        for view in tqdm(range(dm.num_train_views), desc="inconsistency maps", disable=not progress):
+        for view in progress_bar(range(dm.num_train_views), desc="inconsistency maps", disable=not progress):
             own, canonical = render_view(model, cameras, view, as_view=view, keys=("rgb", "rgb_canonical"))
             target = cv2.resize(dm.images[view].cpu().numpy(), (cameras.width, cameras.height),
                                 interpolation=cv2.INTER_AREA)

@@ -9,13 +9,13 @@ from typing import TYPE_CHECKING
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from va_plugin.cameras import Cameras
 from va_plugin.data.images import write_image
 from va_plugin.data.rigs import orbit_cameras
 from va_plugin.raycast import MeshRenderer
 from va_plugin.rays import RayBundle
+from va_plugin.utils.progress import progress_bar
 
 if TYPE_CHECKING:
     import trimesh
@@ -59,7 +59,7 @@ def render_turntable(model, out_dir: Path, n_frames: int = 24, resolution: int =
     out_dir = Path(out_dir)
     cameras = turntable_cameras(n_frames, resolution)
     frames, paths = [], []
-    for k in tqdm(range(n_frames), desc="turntable", disable=not progress):
+    for k in progress_bar(range(n_frames), desc="turntable", disable=not progress):
         frame = render_view(model, cameras, k)
         frames.append(frame)
         path = out_dir / f"frame_{k:03d}.png"
@@ -79,7 +79,7 @@ def held_out_views(pipeline, scale: float = 1.0, max_views: int | None = None, p
         return
     cameras = test.cameras.scaled(scale) if scale != 1.0 else test.cameras
     count = len(test) if max_views is None else min(max_views, len(test))
-    for i in tqdm(range(count), desc=desc, disable=not progress):
+    for i in progress_bar(range(count), desc=desc, disable=not progress):
         render = render_view(pipeline.model, cameras, i) if render_fn is None else render_fn(cameras, i)
         target = test.images[i].numpy()
         if scale != 1.0:

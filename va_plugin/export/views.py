@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 import torch
-from tqdm import tqdm
 
 from va_plugin.cameras import Cameras
 from va_plugin.raycast import o3d
+from va_plugin.utils.progress import progress_bar
 
 EDGE_PIXELS = 3.0
 """A view's weight rises from 0 at EDGE_MARGIN pixels inside its silhouette to 1 this many pixels further."""
@@ -96,7 +96,7 @@ def view_samples(vertices: np.ndarray, faces: np.ndarray, points: np.ndarray, no
     weights = np.zeros((m, n), np.float32)
     in_view = np.zeros(n, bool)
     cameras = views.cameras
-    for k in tqdm(range(n), desc="projecting views", disable=not progress):
+    for k in progress_bar(range(n), desc="projecting views", disable=not progress):
         edge = silhouette_distance(scene, cameras, k, None if views.masks is None else views.masks[k])
         in_view[k] = bool(edge.max() > 0)
         origins, directions, distance, pix = rays_through(cameras, k, points)
