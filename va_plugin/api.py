@@ -55,6 +55,7 @@ from va_plugin.export.writing import check_texture_output
 from va_plugin.pipelines.base import Pipeline
 from va_plugin.registry import discover_methods
 from va_plugin.utils.device import pick_device
+from va_plugin.utils.files import write_atomic
 from va_plugin.utils.memory import check_image_side, check_mesh_resolution, check_render_size
 
 __all__ = [
@@ -330,11 +331,8 @@ def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution
 
 
 def write_json(path: Path, data: dict[str, Any]) -> Path:
-    """Write JSON through a temporary file, so a killed call leaves no half-written file."""
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text(json.dumps(data, indent=2))
-    tmp.replace(path)
-    return path
+    """Write JSON whole or not at all (a killed call leaves no half-written file)."""
+    return write_atomic(path, json.dumps(data, indent=2))
 
 
 def has_ground_truth(loaded: LoadedRun) -> bool:
@@ -441,14 +439,13 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     """A generator output (or scene folder) to a textured mesh, in one call: what ``va-recon`` does.
 
     Trains ``method`` (``quality``: ``fast``, ``default`` or ``accurate``; ``preset`` names any preset of
-    the method instead) on ``views`` of the input, then
-    writes ``RUN/mesh.ply``, the textured ``RUN/mesh.glb`` and a turntable of it (unless ``texture`` is
-    False), scores the run when the input has ground truth, and writes ``RUN/summary.json``. ``out``:
-    the run folder (default ``outputs/recon/<input name>``); ``evaluate_options``: keywords of
-    :func:`evaluate` for the scores. ``progress(step, total, losses)``: called
-    after each training step; ``show_progress``: progress bars on stderr; ``on_message(line)``: the stage
-    lines. ``overrides`` are config overrides as in :func:`build_config`, and so is any other keyword
-    (``pipeline__model__eikonal_weight=0.05``).
+    the method instead) on ``views`` of the input, then writes ``RUN/mesh.ply``, the textured
+    ``RUN/mesh.glb`` and a turntable of it (unless ``texture`` is False), scores the run when the input has
+    ground truth, and writes ``RUN/summary.json``. ``out``: the run folder (default
+    ``outputs/recon/<input name>``); ``evaluate_options``: keywords of :func:`evaluate` for the scores.
+    ``progress(step, total, losses)``: called after each training step; ``show_progress``: progress bars on
+    stderr; ``on_message(line)``: the stage lines. ``overrides`` are config overrides as in
+    :func:`build_config`, and so is any other keyword (``pipeline__model__eikonal_weight=0.05``).
     Interrupted (Ctrl-C), it saves a checkpoint and raises :class:`TrainingInterrupted`; call again with
     ``resume=True`` to continue."""
     started = time.perf_counter()

@@ -9,28 +9,15 @@ from __future__ import annotations
 
 import hashlib
 import json
-import os
 from pathlib import Path
 from typing import Any
 
 from va_plugin.bench.store import _finite_or_none
 from va_plugin.errors import ConfigError
+from va_plugin.utils.files import write_atomic
 
 SETTINGS_FILE = "batch.json"
 MANIFEST_FILE = "manifest.jsonl"
-
-
-def write_atomic(path: Path, text: str) -> Path:
-    """Write ``text`` to a synced temporary file beside ``path``, then rename it into place."""
-    path = Path(path)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "w", encoding="utf-8") as handle:
-        handle.write(text)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
-    return path
 
 
 def settings_fingerprint(settings: dict[str, Any]) -> str:

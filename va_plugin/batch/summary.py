@@ -13,9 +13,9 @@ from typing import Any
 import numpy as np
 
 from va_plugin.batch.job import METRICS
-from va_plugin.batch.manifest import write_atomic
 from va_plugin.bench.report import markdown_table
 from va_plugin.data.images import read_image, write_image
+from va_plugin.utils.files import write_atomic
 
 COLUMNS = ("name", "status", "seconds", *METRICS, "steps", "train_seconds", "error", "input", "run_dir")
 MEAN_COLUMNS = ("seconds", *METRICS, "steps", "train_seconds")
