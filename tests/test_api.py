@@ -105,7 +105,7 @@ def test_progress_and_an_interrupt_reach_the_caller(strip, tmp_path):
         va_plugin.train(config, progress=stop_at_two)
     assert stop.value.step == 2 and stop.value.checkpoint.is_file()
     assert seen == [(1, 4, True), (2, 4, True)]
-    with pytest.raises(ConfigError, match="already holds checkpoints"):
+    with pytest.raises(ConfigError, match="already holds a run"):
         va_plugin.train(config)
     run = va_plugin.train(config, resume=True, progress=lambda step, total, losses: seen.append((step, total)))
     assert seen[-2:] == [(3, 4), (4, 4)] and va_plugin.load_run(run).state["step"] == 4

@@ -21,6 +21,7 @@ training saves a checkpoint and raises :class:`~va_plugin.engine.trainer.Trainin
 from __future__ import annotations
 
 import copy
+import functools
 import json
 import time
 import warnings
@@ -36,10 +37,10 @@ from va_plugin.config import apply_override, validate_config
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.engine.run_folder import check_output_file, claim_run_folder, writing_into_run
 from va_plugin.engine.trainer import (
     TrainerConfig,
     TrainingInterrupted,
-    list_checkpoints,
     load_checkpoint,
     schedule_steps_of,
     train_run,
@@ -56,7 +57,13 @@ from va_plugin.pipelines.base import Pipeline
 from va_plugin.registry import discover_methods
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.files import write_atomic
-from va_plugin.utils.memory import check_image_side, check_mesh_resolution, check_render_size
+from va_plugin.utils.memory import (
+    check_batch_memory,
+    check_image_side,
+    check_mesh_resolution,
+    check_render_size,
+    check_texture_memory,
+)
 
 __all__ = [
     "QUALITIES", "RECOMMENDED_METHOD", "VIEW_COUNTS", "LoadedRun", "MeshFiles", "Reconstruction",
@@ -150,6 +157,7 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
         raise ConfigError(f"unknown data format {data_format!r}; use auto or one of {', '.join(FORMATS)}")
     config = methods[method].make_config(preset)
     config.method_name = method
+    config.preset_name = preset or "default"  # not a field: what the run folder's manifest names
     if data is not None:
         config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), data_format,
                                                                     config.pipeline.datamanager.dataparser)
@@ -181,19 +189,29 @@ def input_summary(pipeline: Pipeline, run_dir: Path) -> str | None:
             f"{meta['mask_source']} (check {Path(run_dir) / MASK_PICTURE})")
 
 
-def _train(config: TrainerConfig, resume: bool, progress: Progress | None,
-           on_message: Callable[[str], None] | None) -> int | None:
-    """:func:`train`'s work; the step the run resumed from (None for a fresh run)."""
+def preset_of(config: TrainerConfig) -> str:
+    """The preset a config was built from (``default`` for a config built by hand)."""
+    return getattr(config, "preset_name", "default")
+
+
+def check_training_memory(config: TrainerConfig) -> None:
+    """Refuse, before the views are read, a training batch that would not fit in memory (the views' own
+    size is checked when they are loaded, before they are resized)."""
+    check_batch_memory(config.pipeline.datamanager.rays_per_batch, config.pipeline.model.samples_per_ray())
+
+
+def _train(config: TrainerConfig, progress: Progress | None, on_message: Callable[[str], None] | None,
+           before_training: Callable[[Any], None] | None = None) -> int | None:
+    """:func:`train`'s work in a claimed run folder; the step the run resumed from (None for a fresh run)."""
     run_dir = Path(config.output_dir)
-    if not resume and list_checkpoints(run_dir):
-        raise ConfigError(f"{run_dir} already holds checkpoints; pass --resume to continue, "
-                          "or choose another --output-dir")
     say = on_message or _quiet
     trainer = config.setup()
     line = input_summary(trainer.pipeline, run_dir)
     if line:
         say(line)
-    done = train_run(config, resume=resume, trainer=trainer, on_step=progress,
+    if before_training is not None:
+        before_training(trainer)
+    done = train_run(config, resume=True, trainer=trainer, on_step=progress,
                      on_resume=lambda step: say(f"resuming {config.method_name} from step {step}"))
     health = done.trainer.guard.summary()
     if health:
@@ -205,16 +223,20 @@ def _quiet(line: str) -> None:
     """The default ``on_message``: nothing is shown."""
 
 
-def train(config: TrainerConfig, *, resume: bool = False, progress: Progress | None = None,
-          on_message: Callable[[str], None] | None = None) -> Path:
+def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = False,
+          progress: Progress | None = None, on_message: Callable[[str], None] | None = None) -> Path:
     """Train ``config`` into its run folder (``config.output_dir``) and return that folder.
 
-    ``resume``: continue from the folder's newest checkpoint (a folder without one starts afresh); without
-    it, a folder that holds checkpoints is refused. ``progress(step, total, losses)`` is called after each
-    step. ``on_message(line)`` gets the lines a user should see (the inputs found, a resume). A run whose
-    health guard intervened ends with a warning. Ctrl-C saves a checkpoint and raises
-    :class:`TrainingInterrupted`."""
-    _train(config, resume, progress, on_message)
+    The folder must be new, empty, or a run of its own (see :mod:`va_plugin.engine.run_folder`);
+    ``overwrite``: write into any folder (an earlier run there starts again). ``resume``: continue from the
+    folder's newest checkpoint, when the method, preset, data and options are the run's own; without it, a
+    folder that holds checkpoints is refused. ``progress(step, total, losses)`` is called after each step.
+    ``on_message(line)`` gets the lines a user should see (the inputs found, a resume). A run whose health
+    guard intervened ends with a warning. Ctrl-C saves a checkpoint and raises :class:`TrainingInterrupted`."""
+    check_training_memory(config)
+    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
+                          flag="--output-dir"):
+        _train(config, progress, on_message)
     return Path(config.output_dir)
 
 
@@ -301,22 +323,39 @@ def check_mesh_options(resolution: int, texture: bool = False, texture_size: int
     check_mesh_resolution(resolution)
 
 
+def _locks_run(function: Callable[..., Any]) -> Callable[..., Any]:
+    """Hold the run folder's lock (:func:`~va_plugin.engine.run_folder.writing_into_run`) while ``function``
+    writes into it; a run that another process is training or exporting is refused."""
+
+    @functools.wraps(function)
+    def locked(run: str | Path | LoadedRun, *args: Any, **kwargs: Any) -> Any:
+        with writing_into_run(run.path if isinstance(run, LoadedRun) else Path(run)):
+            return function(run, *args, **kwargs)
+
+    return locked
+
+
+@_locks_run
 def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution: int = 128,
                 texture_size: int = 1024, fusion: str = "robust", output: str | Path | None = None,
                 vertex_colors: str | Path | None = MESH_FILE, largest_component: bool = False,
                 max_faces: int | None = None, use_inconsistency: bool = False, harmonise: bool | None = None,
-                progress: bool = False, device: str | None = None) -> MeshFiles:
+                progress: bool = False, device: str | None = None, overwrite: bool = False) -> MeshFiles:
     """The run's mesh: marching cubes of its field on a ``resolution``^3 grid, written with vertex colors
     to ``RUN/mesh.ply`` (``vertex_colors``: another name, None for none), and with ``texture`` also
     UV-unwrapped, baked from the input views and written to ``output`` (default ``RUN/mesh.glb``; ``.obj``
     writes ``.obj`` + ``.mtl`` + ``.png``). ``max_faces``: simplify before the unwrap (default 40000,
     0 keeps every face); ``fusion``: ``robust`` or ``mean`` per texel; ``harmonise=False`` skips levelling
-    the views' color gains. Relative file names are inside the run folder."""
+    the views' color gains. Relative file names are inside the run folder; an ``output`` file outside a run
+    folder that exists is refused unless ``overwrite``."""
     run_path = run.path if isinstance(run, LoadedRun) else Path(run)
     out = None if output is None else run_path / output
     if texture and out is None:
         out = run_path / TEXTURED_MESH_FILE
     check_mesh_options(resolution, texture, texture_size, out, max_faces)
+    for path in (out, None if vertex_colors is None else run_path / vertex_colors):
+        if path is not None:
+            check_output_file(path, run_path, overwrite)
     loaded = load_run(run, device)
     mesh = extract_mesh(loaded.pipeline.model, resolution=resolution, largest_component=largest_component,
                         with_color=vertex_colors is not None or not texture)
@@ -352,6 +391,7 @@ def check_evaluate_options(scene: str | Path | None, mesh_resolution: int, image
     check_mesh_resolution(mesh_resolution, "--mesh-resolution")
 
 
+@_locks_run
 def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, mesh_resolution: int = 128,
              image_scale: float = 1.0, max_views: int | None = None, n_samples: int = 100_000,
              mesh: trimesh.Trimesh | None = None, render_dir: str | Path | None = None,
@@ -375,6 +415,7 @@ def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, me
     return result
 
 
+@_locks_run
 def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, scale: float = 1.0,
            max_views: int | None = None, frames: int = 24, turntable_resolution: int = 128,
            device: str | None = None) -> tuple[list[Path], list[Path]]:
@@ -431,7 +472,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
                 device: str = "auto", texture: bool = True, progress: Progress | None = None, *,
                 seed: int | None = None, preset: str | None = None, masks: str | Path | None = None,
                 elevation: float | None = None, rig: str | None = None, data_format: str = "auto",
-                resume: bool = False, texture_size: int = 1024, mesh_resolution: int = 128,
+                resume: bool = False, overwrite: bool = False, texture_size: int = 1024, mesh_resolution: int = 128,
                 turntable_frames: int = 36, fusion: str = "robust", threads: int = 0,
                 evaluate_options: Mapping[str, Any] | None = None,
                 show_progress: bool = False, on_message: Callable[[str], None] | None = None,
@@ -446,6 +487,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     ``progress(step, total, losses)``: called after each training step; ``show_progress``: progress bars on
     stderr; ``on_message(line)``: the stage lines. ``overrides`` are config overrides as in
     :func:`build_config`, and so is any other keyword (``pipeline__model__eikonal_weight=0.05``).
+    The run folder must be new, empty or a run of its own (``overwrite``: any folder; see :func:`train`).
     Interrupted (Ctrl-C), it saves a checkpoint and raises :class:`TrainingInterrupted`; call again with
     ``resume=True`` to continue."""
     started = time.perf_counter()
@@ -460,39 +502,57 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
         raise ConfigError(f"--mesh-resolution must be at least 8, got {mesh_resolution}")
     if turntable_frames < 0:
         raise ConfigError(f"--turntable-frames must be 0 or more, got {turntable_frames}")
+    check_mesh_resolution(mesh_resolution, "--mesh-resolution")
     run_dir = Path(out) if out is not None else Path("outputs") / "recon" / source.resolve().stem
-    if list_checkpoints(run_dir) and not resume:
-        raise ConfigError(f"{run_dir} already holds a run; pass --resume to continue it, or choose another --out")
     config = build_config(method, source, preset=QUALITIES[quality] if preset is None else preset, steps=steps,
                           seed=seed, device=device, out=run_dir, views=views, elevation=elevation, rig=rig,
                           masks=masks, data_format=data_format,
                           overrides=[*_override_list(overrides), *_override_list(more_overrides)],
                           progress=show_progress)
     config.num_threads = threads
+    check_training_memory(config)
     say = on_message or _quiet
-    say(f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} -> {run_dir}")
-    if threads > 0:
-        torch.set_num_threads(threads)
-    # a folder with a checkpoint continues only with resume (refused above otherwise); a fresh one starts
-    resumed_from = _train(config, True, progress, say)
-    loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
-    say(f"extracting the mesh ({mesh_resolution}^3 grid)")
-    if texture:
-        say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
-    files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
-                        fusion=fusion, progress=show_progress)
-    turntable = None
-    if texture and turntable_frames:
-        turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
-                                            progress=show_progress))
-    scores: dict[str, float] = {}
-    if has_ground_truth(loaded):
-        result = evaluate(loaded, mesh=files.mesh, **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
-        scores = {name: result[name] for name in METRICS if name in result}
+    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config), command="recon"):
+        say(f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} -> {run_dir}")
+        if threads > 0:
+            torch.set_num_threads(threads)
+
+        def check_bake(trainer) -> None:
+            if texture:
+                check_texture_memory(texture_size, len(trainer.pipeline.datamanager.train))
+
+        resumed_from = _train(config, progress, say, before_training=check_bake)
+        loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
+        say(f"extracting the mesh ({mesh_resolution}^3 grid)")
+        if texture:
+            say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
+        files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
+                            fusion=fusion, progress=show_progress)
+        turntable = None
+        if texture and turntable_frames:
+            turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
+                                                progress=show_progress))
+        scores: dict[str, float] = {}
+        if has_ground_truth(loaded):
+            result = evaluate(loaded, mesh=files.mesh,
+                              **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
+            scores = {name: result[name] for name in METRICS if name in result}
+        summary = _write_summary(loaded, files, turntable, scores, resumed_from, started,
+                                 input=str(input), method=method, quality=quality)
+    record = summary[1]
+    return Reconstruction(run_dir=run_dir, mesh=Path(files.path), textured_mesh=files.textured_mesh,
+                          turntable=turntable, summary=summary[0], seconds=record["seconds"],
+                          train_seconds=record["train_seconds"], steps=record["steps"], views=record["views"],
+                          masks=record["masks"], config=config, scores=scores, resumed_from_step=resumed_from,
+                          record=record, files=files)
+
+
+def _write_summary(loaded: LoadedRun, files: MeshFiles, turntable: Path | None, scores: dict[str, float],
+                   resumed_from: int | None, started: float, **head: Any) -> tuple[Path, dict[str, Any]]:
+    """``RUN/summary.json`` of :func:`reconstruct`: its path and its record."""
     train_views = loaded.pipeline.datamanager.train
     record: dict[str, Any] = {
-        "input": str(input), "method": method, "quality": quality,
-        "seconds": round(time.perf_counter() - started, 1), "steps": int(loaded.state["step"]),
+        **head, "seconds": round(time.perf_counter() - started, 1), "steps": int(loaded.state["step"]),
         "train_seconds": round(float(loaded.state["train_seconds"]), 2), "views": len(train_views),
         "masks": train_views.metadata.get("mask_source", "scene's alpha"), "mesh": str(files.path)}
     if files.textured_mesh is not None:
@@ -501,9 +561,4 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
         record["turntable"] = str(turntable)
     record["resumed_from_step"] = resumed_from
     record.update(scores)
-    summary = write_json(run_dir / SUMMARY_FILE, record)
-    return Reconstruction(run_dir=run_dir, mesh=Path(files.path), textured_mesh=files.textured_mesh,
-                          turntable=turntable, summary=summary, seconds=record["seconds"],
-                          train_seconds=record["train_seconds"], steps=record["steps"], views=record["views"],
-                          masks=record["masks"], config=config, scores=scores, resumed_from_step=resumed_from,
-                          record=record, files=files)
+    return write_json(loaded.path / SUMMARY_FILE, record), record

@@ -196,6 +196,9 @@ def test_va_train_resume_refuses_a_bad_checkpoint(how, message, trained, tiny_sc
 def test_va_train_resume_refuses_a_checkpoint_of_another_method(trained, tiny_scene, tmp_path, capsys):
     run = broken_run(trained, tmp_path, "other-method")
     code = train_cli.main(["ngp", "--data", str(tiny_scene), "--output-dir", str(run), "--resume", *TINY[:5]])
+    one_line_error(capsys, code, "was trained with method neus, not ngp")  # the run's manifest says so
+    (run / "va-run.json").unlink()  # a run from before manifests: its checkpoint says so
+    code = train_cli.main(["ngp", "--data", str(tiny_scene), "--output-dir", str(run), "--resume", *TINY[:5]])
     one_line_error(capsys, code, "is of method 'neus', not 'ngp'")
 
 

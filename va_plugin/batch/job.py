@@ -106,7 +106,8 @@ def reconstruct(job: ObjectJob, on_message=None) -> dict[str, Any]:
         job.data, job.run_dir, job.method, views=job.options.get("views") or "all", texture=job.texture_size > 0,
         texture_size=job.texture_size or 1024, fusion=job.fusion, mesh_resolution=settings.mesh_resolution,
         turntable_frames=job.turntable_frames, threads=job.threads, show_progress=job.progress,
-        on_message=on_message, resume=True, evaluate_options={
+        on_message=on_message, resume=True, overwrite=True,  # runs/<name> is the batch's own (its batch.log)
+        evaluate_options={
             "image_scale": settings.image_scale, "max_views": settings.max_views, "n_samples": settings.n_samples},
         **{name: value for name, value in job.options.items() if name != "views"})
     out = {key: value for key, value in result.record.items() if key not in ("input", "method", "quality", "seconds")}

@@ -19,10 +19,11 @@ from va_plugin.api import build_config
 from va_plugin.batch.engines import ENGINES, import_ray, run_local, run_ray
 from va_plugin.batch.inputs import find_objects
 from va_plugin.batch.job import Evaluation, ObjectJob
-from va_plugin.batch.manifest import Manifest
+from va_plugin.batch.manifest import SETTINGS_FILE, Manifest
 from va_plugin.batch.summary import contact_sheet, write_summary
-from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
 from va_plugin.cli.train import add_object_options
+from va_plugin.engine.run_folder import check_writable_folder
 from va_plugin.errors import ConfigError
 from va_plugin.export.texture import check_texture_size
 from va_plugin.utils.progress import progress_bar
@@ -54,6 +55,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--resume", action="store_true", help="continue a batch folder: skip the objects its "
                         "manifest holds, continue interrupted ones from their checkpoints")
     parser.add_argument("--retry-failed", action="store_true", help="with --resume: run failed objects again")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write the batch into --out even when it holds other files")
     parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of each mesh")
     parser.add_argument("--eval-image-scale", type=float, default=1.0, help="held-out views rendered at this scale")
     parser.add_argument("--eval-max-views", type=int, default=None, help="evaluate at most this many held-out views")
@@ -93,7 +96,8 @@ def check_options(args: argparse.Namespace) -> None:
         raise ConfigError("--retry-failed goes with --resume")
     if not args.no_texture:
         check_texture_size(args.texture_size)
-    check_output_dir(args.out, "--out")
+    check_writable_folder(args.out, flag="--out", inputs=[args.inputs], overwrite=args.overwrite,
+                          marker=SETTINGS_FILE)
     if args.engine == "ray":
         import_ray()
 

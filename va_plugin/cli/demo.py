@@ -40,6 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
     parser.add_argument("--resolution", type=int, default=256, help="image size of the default scene")
     parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into --output-dir even when it holds other files or another run")
     return parser
 
 
@@ -65,7 +67,7 @@ def main(argv: list[str] | None = None) -> int:
     config = demo_config(args)
     print(f"default scene: {default_scene(args.resolution)}")
     try:
-        run = train(config, resume=True, on_message=print)
+        run = train(config, resume=True, overwrite=args.overwrite, on_message=print)
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; run va-demo again to continue",
               file=sys.stderr)

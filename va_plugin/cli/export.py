@@ -20,6 +20,7 @@ def build_parser() -> argparse.ArgumentParser:
     mesh.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
     mesh.add_argument("--output", type=Path, default=None,
                       help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply; RUN/mesh.glb with --texture)")
+    mesh.add_argument("--overwrite", action="store_true", help="replace an existing --output file outside the run")
     mesh.add_argument("--resolution", type=int, default=128,
                       help="marching-cubes grid resolution (default %(default)s)")
     mesh.add_argument("--largest-component", action="store_true", help="keep only the largest connected part")
@@ -84,7 +85,7 @@ def export_mesh_command(args: argparse.Namespace) -> int:
                         else output.resolve(), vertex_colors=None if args.texture else output.resolve(),
                         largest_component=args.largest_component, max_faces=args.max_faces,
                         use_inconsistency=args.use_inconsistency, harmonise=False if args.no_harmonise else None,
-                        progress=True, device=args.device)
+                        progress=True, device=args.device, overwrite=args.overwrite)
     mesh = files.mesh
     if not args.texture:
         print(f"mesh with {len(mesh.vertices)} vertices and {len(mesh.faces)} faces written to {files.path}")

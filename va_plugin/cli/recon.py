@@ -55,6 +55,8 @@ def build_parser(methods) -> argparse.ArgumentParser:
     parser.add_argument("--seed", type=int, default=None, help="random seed (default 42)")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N] (default auto)")
     parser.add_argument("--resume", action="store_true", help="continue an interrupted run in OUT")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into OUT even when it holds other files (an earlier run there starts again)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="PATH=VALUE",
                         help="override a config value of the method (va-train METHOD --help-config lists them)")
     return parser
@@ -85,8 +87,9 @@ def main(argv: list[str] | None = None) -> int:
         result = reconstruct(args.input, args.out, method=args.method, quality=args.quality,
                              views=args.views if args.views is not None else "all", steps=args.steps,
                              device=args.device, texture=not args.no_texture, seed=args.seed, masks=args.masks,
-                             data_format=args.data_format, resume=args.resume, texture_size=args.texture_size,
-                             mesh_resolution=args.mesh_resolution, turntable_frames=args.turntable_frames,
+                             data_format=args.data_format, resume=args.resume, overwrite=args.overwrite,
+                             texture_size=args.texture_size, mesh_resolution=args.mesh_resolution,
+                             turntable_frames=args.turntable_frames,
                              show_progress=True, on_message=say, overrides=list(args.overrides))
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with the same "

@@ -35,6 +35,9 @@ def build_parser(methods) -> argparse.ArgumentParser:
                              "input's layout, instead of the color key")
     parser.add_argument("--output-dir", type=Path, default=None, help="run folder (default outputs/METHOD)")
     parser.add_argument("--resume", action="store_true", help="continue from the run folder's newest checkpoint")
+    parser.add_argument("--overwrite", action="store_true",
+                        help="write into the run folder even when it holds other files (an earlier run there "
+                             "starts again)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     parser.add_argument("--export-mesh", action="store_true", help="write mesh.ply into the run folder at the end")
     parser.add_argument("--default-scene-resolution", type=int, default=256,
@@ -112,7 +115,7 @@ def main(argv: list[str] | None = None) -> int:
     run_dir = Path(config.output_dir)
     check_output_dir(run_dir, "--output-dir")
     try:
-        train(config, resume=args.resume, on_message=say)
+        train(config, resume=args.resume, overwrite=args.overwrite, on_message=say)
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with --resume",
               file=sys.stderr)

@@ -35,6 +35,10 @@ class ModelConfig(InstantiateConfig):
     eval_chunk: int = 2048
     """Rays rendered at once when rendering whole images."""
 
+    def samples_per_ray(self) -> int:
+        """The most samples a training ray evaluates with gradients (for the up-front memory estimate)."""
+        return int(getattr(self, "n_samples", 0)) + int(getattr(self, "n_importance", 0))
+
 
 ExtraLoss = Callable[[dict[str, torch.Tensor], dict[str, torch.Tensor], int], dict[str, torch.Tensor]]
 

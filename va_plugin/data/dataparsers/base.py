@@ -12,6 +12,7 @@ import torch
 from va_plugin.cameras import Cameras
 from va_plugin.config import InstantiateConfig
 from va_plugin.data.images import resize
+from va_plugin.utils.memory import check_view_memory
 
 
 @dataclass
@@ -61,6 +62,7 @@ def rescale_views(cameras: Cameras, images: np.ndarray, masks: np.ndarray | None
     """Cameras, images ``[n, H, W, 3]`` and masks ``[n, H, W, 1]`` resized by ``factor`` (1: unchanged)."""
     if factor == 1.0:
         return cameras, images, masks
+    check_view_memory(len(images), int(cameras.width), int(cameras.height), factor)
     cameras = cameras.scaled(factor)
     images = np.stack([resize(im, cameras.width, cameras.height) for im in images])
     if masks is not None:
