@@ -177,3 +177,15 @@ def test_the_data_fingerprint_follows_the_files(tiny_scene, tmp_path):
     assert data_fingerprint([copy]) == data_fingerprint([tiny_scene])
     (copy / "transforms_train.json").write_text((copy / "transforms_train.json").read_text() + "\n")
     assert data_fingerprint([copy]) != data_fingerprint([tiny_scene])
+
+
+def test_export_to_a_read_only_place_is_refused_before_marching_cubes(run, tmp_path, capsys, monkeypatch):
+    from va_plugin import api  # the module whose marching cubes must not run
+
+    monkeypatch.setattr(api, "extract_mesh", lambda *a, **k: pytest.fail("marching cubes ran"))
+    locked = tmp_path / "locked"
+    locked.mkdir()
+    locked.chmod(0o500)
+    monkeypatch.setattr(run_folder.tempfile, "TemporaryFile", lambda **k: (_ for _ in ()).throw(OSError("ro")))
+    one_line_error(capsys, export_cli.main(["mesh", "--load-dir", str(run), "--resolution", "16", "--output",
+                                            str(locked / "mesh.ply")]), "cannot be written")

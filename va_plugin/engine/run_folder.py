@@ -349,8 +349,10 @@ def writing_into_run(folder: Path) -> Iterator[None]:
 
 def check_output_file(path: Path, run_dir: Path | None = None, overwrite: bool = False,
                       flag: str = "--output") -> None:
-    """Refuse to write over an existing file outside a run folder without ``overwrite``."""
+    """Refuse, before any work, an output file whose folder cannot be written, and an existing file outside
+    a run folder without ``overwrite``."""
     path = Path(path).expanduser()
+    check_output_dir(path.parent, flag)
     if not path.exists() or overwrite:
         return
     if path.is_dir():
