@@ -177,6 +177,7 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
     for assignment in _override_list(overrides):
         apply_override(config, assignment)
     validate_config(config)
+    pick_device(config.device)  # a device this machine lacks is refused here, before any work
     return config
 
 

@@ -18,6 +18,7 @@ import itertools
 import json
 import math
 import os
+import re
 import textwrap
 import warnings
 from dataclasses import dataclass, field, fields, is_dataclass
@@ -122,6 +123,9 @@ def config_digest(config: Any) -> str:
 def _convert(text: str, current: Any, name: str) -> Any:
     """Turn the text of an override into the type of the value it replaces."""
     lowered = text.strip().lower()
+    if (is_dataclass(current) and not isinstance(current, type)) or isinstance(current, dict):
+        raise ConfigError(f"option {name} is a group of options, not a value; set one of its keys"
+                          f"{_example_key(current, name)}")
     if isinstance(current, bool):
         if lowered in ("1", "true", "yes", "on"):
             return True
@@ -147,49 +151,93 @@ def _convert(text: str, current: Any, name: str) -> Any:
                 pass
         return text
     if isinstance(current, (tuple, list)):
-        try:
-            parsed = json.loads(text)
-        except json.JSONDecodeError:
-            parsed = [p for p in text.split(",") if p]
-        if not isinstance(parsed, list):
-            parsed = [parsed]
-        return type(current)(parsed)
+        return _convert_sequence(text, current, name)
+    if isinstance(current, PurePath):
+        return type(current)(text)
     return text
+
+
+def _convert_sequence(text: str, current: tuple | list, name: str) -> tuple | list:
+    """A list override, written ``1,0.5,0``, ``[1, 0.5, 0]``, ``(1 0.5 0)`` or as JSON, each item in the type of
+    the item it replaces; a tuple keeps its length (a color has three channels)."""
+    body = text.strip()
+    if len(body) >= 2 and (body[0], body[-1]) in (("[", "]"), ("(", ")")):
+        body = body[1:-1]
+    items = [item.strip().strip("'\"") for item in re.split(r"[,\s]+", body) if item.strip()]
+    shown = ",".join(str(v) for v in current)
+    form = f" (like {shown} or [{shown}])" if current else ""
+    fixed = isinstance(current, tuple)
+    if fixed and len(items) != len(current):
+        raise ConfigError(f"option {name} takes {len(current)} values{form}, got {len(items)} in {text!r}")
+    try:
+        values = [_convert(item, current[k] if fixed else (current[0] if current else None), name)
+                  for k, item in enumerate(items)]
+    except ConfigError:
+        kind = "numbers" if current and isinstance(current[0], (int, float)) else "values"
+        raise ConfigError(f"option {name} takes {kind}{form}, got {text!r}") from None
+    return type(current)(values)
+
+
+def _example_key(section: Any, name: str) -> str:
+    """``", e.g. a.b.c=VALUE"`` with the first key below a group of options."""
+    if isinstance(section, dict):
+        for key, sub in section.items():
+            if is_dataclass(sub):
+                return _example_key(sub, f"{name}.{key}")
+        return ""
+    rows = describe_options(section, name + ".")
+    return f", e.g. {rows[0][0]}=VALUE (--help-config lists them)" if rows else ""
 
 
 # Ranges of numeric options by their last name, checked on every override, so that a value that would
 # train backwards, divide by zero or build an empty network is refused in one line before any work.
 _POSITIVE = frozenset({
-    "attention_dim", "attention_heads", "base_resolution", "bound", "branch_layers", "branch_width",
-    "checkpoint_every", "color_width", "density_threshold", "eval_chunk", "features_per_level",
-    "finite_difference_cells", "hidden_width", "image_scale", "init_radius", "keep_checkpoints",
-    "log_every", "max_resolution", "max_skips_in_a_row", "max_steps", "n_levels", "n_samples",
+    "attention_dim", "attention_heads", "base_resolution", "border", "bound", "branch_layers", "branch_width",
+    "checkpoint_every", "color_width", "crossings_rays", "density_threshold", "eval_chunk", "features_per_level",
+    "finite_difference_cells", "hidden_width", "hull_resolution", "image_scale", "init_radius", "keep_checkpoints",
+    "log_every", "max_resolution", "max_skips_in_a_row", "max_steps", "n_levels", "n_samples", "ortho_scale",
     "rays_per_batch", "resolution", "scene_radius", "sdf_width", "skip_margin",
     "snapshot_every", "softplus_beta", "update_every"})
 _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
-    "color_layers", "consistent_color_cast", "diagnostics_scale",
+    "close_px", "color_layers", "consistent_color_cast", "diagnostics_scale",
     "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "inv_s_collapse",
     "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "mesh_smoothing", "min_sample_weight",
-    "n_importance", "num_threads", "schedule_steps", "sdf_layers", "shared_color_weight", "shared_lr_scale",
-    "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels", "threshold", "up_sample_steps",
-    "warmup_steps", "weight_decay", "min_foreground_opacity", "final_check_after"})
-_UNIT_INTERVAL = frozenset({"decay", "early_stop_transmittance", "train_until"})
+    "n_importance", "num_threads", "position_frequencies", "schedule_steps", "sdf_layers", "shared_color_weight",
+    "shared_lr_scale", "snapshot_inv_s_fraction", "spike_factor", "spike_floor", "start_levels", "threshold",
+    "up_sample_steps", "warmup_steps", "weight_decay", "min_foreground_opacity", "final_check_after"})
+_UNIT_INTERVAL = frozenset({  # shares, and colors (each channel of a background)
+    "background", "crossings_start", "decay", "early_stop_transmittance", "inv_s_floor_start", "max_hole",
+    "min_blob", "min_border_share", "min_foreground", "pixel_offset", "train_until"})
+SEED_RANGE = (0, 2**32 - 1)
+"""Seeds every random generator takes (numpy's legacy seeding stops at 2**32 - 1)."""
+
+
+def _range_problem(name: str, value: float) -> str | None:
+    """What is wrong with one number of option ``name`` (by its last name), or None."""
+    if name in _POSITIVE and not value > 0:
+        return "must be positive"
+    if (name in _NON_NEGATIVE or name.endswith("_weight")) and not value >= 0:
+        return "must be >= 0"
+    if (name in _UNIT_INTERVAL or name.endswith("_fraction")) and not 0 <= value <= 1:
+        return "must be in [0, 1]"
+    if name == "direction_frequencies" and value < -1:
+        return "must be -1 (no direction), 0 (raw direction) or a number of bands"
+    low, high = SEED_RANGE
+    if name == "seed" and not (math.isfinite(value) and value == int(value) and low <= value <= high):
+        return f"must be an integer from {low} to {high} (2**32 - 1)"
+    return None
 
 
 def check_range(name: str, value: Any, path: str) -> None:
     """Refuse a numeric option outside its range (``*_weight`` >= 0, ``*_fraction`` in [0, 1], counts
-    and sizes positive, ...); other names are not checked here."""
-    if isinstance(value, bool) or not isinstance(value, (int, float)):
-        return
-    if name in _POSITIVE and not value > 0:
-        raise ConfigError(f"option {path} must be positive, got {value}")
-    if (name in _NON_NEGATIVE or name.endswith("_weight")) and not value >= 0:
-        raise ConfigError(f"option {path} must be >= 0, got {value}")
-    if (name in _UNIT_INTERVAL or name.endswith("_fraction")) and not 0 <= value <= 1:
-        raise ConfigError(f"option {path} must be in [0, 1], got {value}")
-    if name == "direction_frequencies" and value < -1:
-        raise ConfigError(f"option {path} must be -1 (no direction), 0 (raw direction) or a number of bands, "
-                          f"got {value}")
+    and sizes positive, seeds in :data:`SEED_RANGE`, ...), each number of a list option (a background color's
+    channels in [0, 1]) alike; other names are not checked here."""
+    for item in value if isinstance(value, (list, tuple)) else (value,):
+        if isinstance(item, bool) or not isinstance(item, (int, float)):
+            continue
+        problem = _range_problem(name, item)
+        if problem:
+            raise ConfigError(f"option {path} {problem}, got {value}")
 
 
 def validate_config(config: Any, prefix: str = "") -> None:
@@ -230,7 +278,9 @@ def apply_override(config: Any, assignment: str) -> None:
                               f"{_nearest_keys(config, path.strip())}")
         target = getattr(target, part)
     last = parts[-1]
-    if not is_dataclass(target) or last not in {f.name for f in fields(target)}:
+    if isinstance(target, dict) and last in target:  # optimizers.fields: a group, not a value
+        _convert(text, target[last], path)
+    if not is_dataclass(target) or last.startswith("_") or last not in {f.name for f in fields(target)}:
         raise ConfigError(f"unknown option {path!r}{_nearest_keys(config, path.strip())}")
     value = _convert(text, getattr(target, last), path)
     check_range(last, value, path)

@@ -67,6 +67,17 @@ def mutate(root, meta, breakage):
         pose[3] = [0.1, 0.0, 0.0, 1.0]
     elif breakage == "negative-focal":
         meta["frames"][1]["fl_x"] = -20.0
+    elif breakage.startswith("angle="):  # Blender intrinsics: the field of view instead of focal lengths
+        for frame in meta["frames"]:
+            for key in ("fl_x", "fl_y", "cx", "cy"):
+                frame.pop(key, None)
+        meta["camera_angle_x"] = json.loads(breakage[len("angle="):])
+    elif "=" in breakage:  # a camera value of frame 1 (fl_x=...) or of the file (w=...)
+        key, value = breakage.split("=", 1)
+        (meta if key in ("w", "h") else meta["frames"][1])[key] = json.loads(value)
+    elif breakage == "same-pose-everywhere":
+        for frame in meta["frames"]:
+            frame["transform_matrix"] = meta["frames"][0]["transform_matrix"]
     elif breakage == "empty-masks":
         for k in range(len(meta["frames"])):
             write_image(image(root, k), np.zeros((24, 24, 4), np.float32))
@@ -94,6 +105,20 @@ def mutate(root, meta, breakage):
     ("reflected-pose", "reflection"),
     ("projective-pose", "not a rigid transform"),
     ("negative-focal", "positive focal lengths"),
+    # intrinsics checked as they are read: never a ZeroDivisionError, a ValueError or a run that fails at the bake
+    ("angle=0", "camera_angle_x is the horizontal field of view in radians, between 0 and pi; got 0"),
+    ('angle="abc"', "camera_angle_x must be a finite number, got 'abc'"),
+    ("angle=3.1416", "between 0 and pi"),
+    ("angle=3.1", "a field of view of 177.6 degrees"),
+    ("angle=null", "no intrinsics (need camera_angle_x or fl_x"),
+    ('fl_x="abc"', "fl_x must be a finite number, got 'abc'"),
+    ("fl_x=0.01", "is beyond the 170 a perspective camera can have"),
+    ("fl_y=0", "positive focal lengths"),
+    ("cx=-1", "the principal point (cx -1, cy 12) must lie inside the 24x24 image"),
+    ('cy="12"', "cy must be a finite number, got '12'"),
+    ('w="abc"', "w must be a finite number, got 'abc'"),
+    ("h=0", "h must be a positive whole number of pixels, got 0"),
+    ("same-pose-everywhere", "all 4 training views have the same camera pose"),
     ("empty-masks", "masks are empty"),
     ("object-outside-bound", "does not fit in the bounding sphere"),
     ("no-frames", "has no frames"),
@@ -136,13 +161,32 @@ def test_va_train_refuses_a_broken_scene(breakage, message, tiny_scene, tmp_path
     (["neus", "--set", "pipeline.datamanager.dataparser.image_scale=0"], "image_scale must be positive"),
     (["ngp", "--set", "pipeline.model.occupancy_grid.decay=1.5"], "decay must be in [0, 1]"),
     (["va-neus", "--set", "pipeline.model.field.branch_layers=0"], "branch_layers must be positive"),
+    # lists, groups, devices and seeds: checked as --set and the flags are read
+    (["neus", "--set", "pipeline.datamanager.dataparser.background=[1,1]"],
+     "background takes 3 values (like 1.0,1.0,1.0 or [1.0,1.0,1.0]), got 2 in '[1,1]'"),
+    (["neus", "--set", "pipeline.datamanager.dataparser.background=1,1,1,1"], "background takes 3 values"),
+    (["neus", "--set", "pipeline.datamanager.dataparser.background=[2,2,2]"],
+     "background must be in [0, 1], got (2.0, 2.0, 2.0)"),
+    (["neus", "--set", "pipeline.datamanager.dataparser.background=[a,b,c]"], "background takes numbers"),
+    (["neus", "--set", "pipeline.model=5"], "option pipeline.model is a group of options, not a value"),
+    (["neus", "--set", "optimizers.fields=3"], "e.g. optimizers.fields.lr=VALUE"),
+    (["neus", "--set", "pipeline.model._target=x"], "unknown option 'pipeline.model._target'"),
+    (["neus", "--set", "pipeline.datamanager.seed=-1"], "pipeline.datamanager.seed must be an integer from 0"),
+    (["neus", "--seed", "99999999999999999999999"], "option seed must be an integer from 0 to 4294967295"),
+    (["neus", "--seed", "-1"], "option seed must be an integer from 0 to 4294967295 (2**32 - 1), got -1"),
+    (["neus", "--device", "mps"], "device 'mps' is not supported; use auto, cpu or cuda[:N]"),
+    (["neus", "--device", "meta"], "device 'meta' is not supported"),
+    (["neus", "--device", "cpu:3"], "there is one CPU device"),
+    (["neus", "--device", "cuda:7"], "device 'cuda:7' was asked for but"),
+    (["neus", "--device", "gpu"], "unknown device 'gpu'"),
 ])
 def test_va_train_refuses_contradictory_options(argv, message, tiny_scene, tmp_path, capsys):
     run = tmp_path / "run"
-    code = train_cli.main(argv + ["--data", str(tiny_scene), "--output-dir", str(run), "--no-progress",
-                                  "--device", "cpu"] + (["--steps", "1"] if "--steps" not in argv else []))
+    device = [] if "--device" in argv else ["--device", "cpu"]
+    code = train_cli.main(argv + ["--data", str(tiny_scene), "--output-dir", str(run), "--no-progress", *device]
+                          + (["--steps", "1"] if "--steps" not in argv else []))
     one_line_error(capsys, code, message)
-    assert not list_checkpoints(run)
+    assert not run.exists()
 
 
 @pytest.fixture(scope="module")

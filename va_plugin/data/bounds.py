@@ -1,5 +1,6 @@
 """Does the object fit in the scene's bounding sphere (where every model samples)? Inputs that stick out
-are refused; an object the image frame cuts off is allowed, with a warning."""
+are refused; an object the image frame cuts off is allowed, with a warning. Do the views see it from
+different places? Views that all share one pose are refused, duplicated poses warned about."""
 
 from __future__ import annotations
 
@@ -18,6 +19,9 @@ MAX_BORDER_FRACTION = 0.01
 """Share of a view's border pixels that may be foreground before the object counts as cut off."""
 MAX_CHECKED_PIXELS = 16384
 """Foreground pixels checked per view (an even subsample beyond that)."""
+SAME_POSE_TOLERANCE = 1e-3
+"""Two views share a pose when their camera centres lie within this share of the scene radius and their
+rotations differ by at most this in every entry."""
 
 
 def check_object_in_bound(outputs: DataparserOutputs) -> None:
@@ -66,3 +70,40 @@ def warn_object_cut_by_frame(outputs: DataparserOutputs) -> list[float]:
                       "seen by no view, so the surface there is a guess; inputs with a margin around the object "
                       "avoid this", stacklevel=2)
     return shares
+
+
+def same_pose_groups(outputs: DataparserOutputs) -> list[list[int]]:
+    """The groups of two or more training views that share one camera pose (centre and rotation, within
+    :data:`SAME_POSE_TOLERANCE`), each in view order."""
+    c2w = outputs.cameras.c2w.double()
+    if len(c2w) < 2:
+        return []
+    centres, rotations = c2w[:, :, 3], c2w[:, :, :3].reshape(len(c2w), 9)
+    scale = SAME_POSE_TOLERANCE * max(float(outputs.scene_radius), 1e-6)
+    same = (torch.cdist(centres, centres) <= scale) & \
+        ((rotations[:, None] - rotations[None]).abs().amax(-1) <= SAME_POSE_TOLERANCE)
+    groups, seen = [], set()
+    for view in range(len(c2w)):
+        if view in seen:
+            continue
+        group = [int(v) for v in same[view].nonzero().flatten() if int(v) not in seen]
+        seen.update(group)
+        if len(group) > 1:
+            groups.append(group)
+    return groups
+
+
+def check_distinct_views(outputs: DataparserOutputs) -> list[list[int]]:
+    """Raise :class:`DataError` when every training view (two or more) has the same camera pose: one
+    viewpoint holds no depth. Warn when some do (a duplicate adds no viewpoint; often a copy-paste error in
+    the poses). Returns the groups of views that share a pose."""
+    groups = same_pose_groups(outputs)
+    count = len(outputs.cameras)
+    if groups and len(groups[0]) == count:
+        raise DataError(f"all {count} training views have the same camera pose, so they see the object from one "
+                        "viewpoint and give no depth; check the poses (transform_matrix of each frame)")
+    if groups:
+        shown = "; ".join(", ".join(str(v) for v in group) for group in groups[:5])
+        warnings.warn(f"training views with the same camera pose: {shown}{' ...' if len(groups) > 5 else ''}; "
+                      "a view repeated from the same place adds no viewpoint (check the poses)", stacklevel=2)
+    return groups

@@ -9,7 +9,7 @@ from pathlib import Path
 import torch
 
 from va_plugin.config import InstantiateConfig
-from va_plugin.data.bounds import check_object_in_bound, warn_object_cut_by_frame
+from va_plugin.data.bounds import check_distinct_views, check_object_in_bound, warn_object_cut_by_frame
 from va_plugin.data.dataparsers.base import DataParserConfig, DataparserOutputs
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
 from va_plugin.data.foreground import write_mask_picture
@@ -58,6 +58,7 @@ class DataManager:
         self.generator = torch.Generator(device="cpu").manual_seed(config.seed)
         self._height, self._width = self.images.shape[1:3]
         self._foreground = self._foreground_pixels()
+        check_distinct_views(self.train)
         check_object_in_bound(self.train)
         warn_object_cut_by_frame(self.train)
 

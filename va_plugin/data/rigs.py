@@ -73,9 +73,20 @@ def orbit_cameras(azimuths_deg: Sequence[float], elevations_deg: Sequence[float]
     return Cameras(c2w, f, f, c, c, resolution, resolution, pixel_offset=pixel_offset)
 
 
+def check_elevation(elevation_deg: float, option: str = "elevation") -> float:
+    """Refuse an orbit elevation that is not a number strictly between -90 and 90 degrees (at the poles the
+    cameras' up direction is undefined)."""
+    if isinstance(elevation_deg, bool) or not isinstance(elevation_deg, (int, float)) or \
+            not -90.0 < elevation_deg < 90.0:
+        raise ConfigError(f"{option} must be between -90 and 90 degrees, exclusive (SyncDreamer generates at "
+                          f"{RIG_ELEVATION_DEG:g}), got {elevation_deg}")
+    return float(elevation_deg)
+
+
 def syncdreamer_rig(resolution: int = 256, elevation_deg: float = RIG_ELEVATION_DEG,
                     pixel_offset: float = 0.0) -> Cameras:
-    """All 16 SyncDreamer cameras."""
+    """All 16 SyncDreamer cameras at ``elevation_deg`` (in (-90, 90))."""
+    check_elevation(elevation_deg)
     return orbit_cameras([k * 360.0 / RIG_VIEWS for k in range(RIG_VIEWS)], elevation_deg, resolution=resolution,
                          pixel_offset=pixel_offset)
 

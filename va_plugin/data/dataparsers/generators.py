@@ -29,6 +29,7 @@ from va_plugin.errors import ConfigError, DataError
 
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
 NORMALIZE_MODES = ("rig", "silhouettes")
+NORMAL_FRAMES = ("front", "view")
 LOW_SILHOUETTE_IOU = 0.8  # below this mean the rig does not explain the views
 
 SYNCDREAMER_LAYOUT = "one image of 16 square views side by side in azimuth order, 256 high x 4096 wide"
@@ -75,6 +76,12 @@ class GeneratorDataParserConfig(DataParserConfig):
     hull of the masks into the unit box."""
     hull_resolution: int = 64
     """Voxels along the longest side of the visual hull (for normalisation and the silhouette check)."""
+
+    def validate(self, prefix: str = "") -> None:
+        """A known ``normalize`` mode."""
+        if self.normalize not in NORMALIZE_MODES:
+            raise ConfigError(f"unknown {prefix}normalize mode {self.normalize!r}; use one of: "
+                              f"{', '.join(NORMALIZE_MODES)}")
 
 
 @dataclass
@@ -262,6 +269,12 @@ class SyncDreamerDataParserConfig(GeneratorDataParserConfig):
     pixel_offset: float = 0.5
     """Where pixels are sampled: 0.5 matches the Blender renders SyncDreamer was trained on."""
 
+    def validate(self, prefix: str = "") -> None:
+        """The elevation (``--elevation``) strictly between -90 and 90 degrees."""
+        super().validate(prefix)
+        rigs.check_elevation(self.elevation_deg, f"option {prefix}elevation_deg (--elevation)")
+        rigs.input_view_ids(self.num_views)
+
 
 class SyncDreamerDataParser(SingleImageDataParser):
     config: SyncDreamerDataParserConfig
@@ -289,6 +302,12 @@ class Zero123ppDataParserConfig(GeneratorDataParserConfig):
     normalize: str = "silhouettes"
     """Zero123++ leaves the camera radius (hence the object's size) free: fit it from the masks."""
 
+    def validate(self, prefix: str = "") -> None:
+        """A known rig (``--rig``)."""
+        super().validate(prefix)
+        if self.rig not in rigs.ZERO123PP_RIGS:
+            raise ConfigError(f"unknown Zero123++ rig {self.rig!r} (--rig); known: {', '.join(rigs.ZERO123PP_RIGS)}")
+
 
 class Zero123ppDataParser(SingleImageDataParser):
     config: Zero123ppDataParserConfig
@@ -314,6 +333,12 @@ class Wonder3DDataParserConfig(GeneratorDataParserConfig):
     """Camera frame of the normal maps: "front" (what Wonder3D's own reconstruction assumes) or "view"."""
     normalize: str = "silhouettes"
     """Fit the masks' visual hull into the unit box."""
+
+    def validate(self, prefix: str = "") -> None:
+        """A known ``normal_frame``."""
+        super().validate(prefix)
+        if self.normal_frame not in NORMAL_FRAMES:
+            raise ConfigError(f"{prefix}normal_frame must be front or view, got {self.normal_frame!r}")
 
 
 def wonder3d_file(folder: Path, prefix: str, view: str) -> Path | None:
@@ -356,7 +381,7 @@ class Wonder3DDataParser(GeneratorDataParser):
 
     def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> dict[str, Any]:
         """World-space normal maps ``[6, H, W, 3]`` (zero outside their alpha) when the folder has them."""
-        if self.config.normal_frame not in ("front", "view"):
+        if self.config.normal_frame not in NORMAL_FRAMES:
             raise ConfigError(f"normal_frame must be front or view, got {self.config.normal_frame!r}")
         folder = Path(self.config.data)
         paths = [wonder3d_file(folder, "normals", v) for v in self.view_names()]

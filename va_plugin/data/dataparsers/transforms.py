@@ -64,8 +64,35 @@ def _resolve_image(json_dir: Path, file_path: str) -> Path:
     return path
 
 
-def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, where: str):
-    """fx, fy, cx, cy of a frame from its own keys or the file's top-level keys."""
+MAX_FIELD_OF_VIEW_DEG = 170.0
+"""Widest field of view a perspective camera may have (a pinhole camera cannot see 180 degrees; near it, a
+pixel spans a huge angle and the rays no longer meet the object)."""
+
+
+def _number(value: Any, key: str, where: str) -> float:
+    """A JSON number of the camera, finite; a clear error for text, booleans, null or NaN."""
+    if isinstance(value, bool) or not isinstance(value, (int, float)) or not math.isfinite(value):
+        raise DataError(f"{where}: {key} must be a finite number, got {value!r}")
+    return float(value)
+
+
+def _image_size(meta: dict[str, Any], frame: dict[str, Any], image: np.ndarray, where: str) -> tuple[int, int]:
+    """``w, h`` of a frame from its own keys, the file's top-level keys or the image itself."""
+    size = []
+    for key, axis in (("w", 1), ("h", 0)):
+        value = frame.get(key, meta.get(key, image.shape[axis]))
+        number = _number(value, key, where)
+        if number < 1 or number != int(number):
+            raise DataError(f"{where}: {key} must be a positive whole number of pixels, got {value!r}")
+        size.append(int(number))
+    return size[0], size[1]
+
+
+def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], width: int, height: int, where: str,
+                perspective: bool = True):
+    """fx, fy, cx, cy of a frame from its own keys or the file's top-level keys, each checked: numbers, positive
+    focal lengths, a principal point inside the image and (perspective) a field of view below
+    :data:`MAX_FIELD_OF_VIEW_DEG`."""
     def pick(key):
         return frame.get(key, meta.get(key))
 
@@ -74,15 +101,28 @@ def _intrinsics(meta: dict[str, Any], frame: dict[str, Any], width: int, height:
     if fl_x is None and angle_x is None:
         raise DataError(f"{where}: no intrinsics (need camera_angle_x or fl_x/fl_y/cx/cy)")
     if fl_x is None:
-        fl_x = 0.5 * width / math.tan(0.5 * float(angle_x))
-    fl_y = fl_x if fl_y is None else fl_y
+        angle = _number(angle_x, "camera_angle_x", where)
+        if not 0.0 < angle < math.pi:
+            raise DataError(f"{where}: camera_angle_x is the horizontal field of view in radians, between 0 and "
+                            f"pi; got {angle_x!r}")
+        fl_x = 0.5 * width / math.tan(0.5 * angle)
+    fl_x = _number(fl_x, "fl_x", where)
+    fl_y = fl_x if fl_y is None else _number(fl_y, "fl_y", where)
+    if fl_x <= 0 or fl_y <= 0:
+        raise DataError(f"{where}: intrinsics must have positive focal lengths, got fl_x {fl_x:g}, fl_y {fl_y:g}")
     cx, cy = pick("cx"), pick("cy")
-    cx = width / 2.0 if cx is None else cx
-    cy = height / 2.0 if cy is None else cy
-    values = [float(v) for v in (fl_x, fl_y, cx, cy)]
-    if not all(math.isfinite(v) for v in values) or values[0] <= 0 or values[1] <= 0:
-        raise DataError(f"{where}: intrinsics must be finite with positive focal lengths, got {values}")
-    return values
+    cx = width / 2.0 if cx is None else _number(cx, "cx", where)
+    cy = height / 2.0 if cy is None else _number(cy, "cy", where)
+    if not (0.0 < cx < width and 0.0 < cy < height):
+        raise DataError(f"{where}: the principal point (cx {cx:g}, cy {cy:g}) must lie inside the "
+                        f"{width}x{height} image")
+    if perspective:
+        fov = max(2.0 * math.degrees(math.atan(0.5 * width / fl_x)), 2.0 * math.degrees(math.atan(0.5 * height / fl_y)))
+        if fov >= MAX_FIELD_OF_VIEW_DEG:
+            raise DataError(f"{where}: a field of view of {fov:.1f} degrees (focal length {min(fl_x, fl_y):g} px for "
+                            f"a {width}x{height} image) is beyond the {MAX_FIELD_OF_VIEW_DEG:g} a perspective camera "
+                            "can have; check camera_angle_x (radians) or fl_x/fl_y (pixels)")
+    return [fl_x, fl_y, cx, cy]
 
 
 @dataclass
@@ -104,16 +144,16 @@ class TransformsDataParser(DataParser):
         frames = meta.get("frames")
         if not isinstance(frames, list) or not frames:
             raise DataError(f"{json_path} has no frames")
+        camera_type = str(meta.get("camera_type", PERSPECTIVE))
         images, masks, poses, intrinsics, paths = [], [], [], [], []
         size = None
         for k, frame in enumerate(frames):
             where = f"{json_path.name} frame {k}"
-            if "file_path" not in frame or "transform_matrix" not in frame:
+            if not isinstance(frame, dict) or "file_path" not in frame or "transform_matrix" not in frame:
                 raise DataError(f"{where}: needs file_path and transform_matrix")
             path = _resolve_image(json_path.parent, str(frame["file_path"]))
             image = read_image(path)
-            width = int(frame.get("w", meta.get("w", image.shape[1])))
-            height = int(frame.get("h", meta.get("h", image.shape[0])))
+            width, height = _image_size(meta, frame, image, where)
             if (image.shape[1], image.shape[0]) != (width, height):
                 raise DataError(f"{path}: image is {image.shape[1]}x{image.shape[0]} "
                                 f"but the json says {width}x{height}")
@@ -121,7 +161,10 @@ class TransformsDataParser(DataParser):
                 size = (width, height)
             elif size != (width, height):
                 raise DataError(f"images differ in size: {paths[0]} is {size[0]}x{size[1]}, {path} is {width}x{height}")
-            matrix = np.asarray(frame["transform_matrix"], dtype=np.float64)
+            try:
+                matrix = np.asarray(frame["transform_matrix"], dtype=np.float64)
+            except (TypeError, ValueError):
+                raise DataError(f"{where}: transform_matrix must be a 4x4 list of numbers") from None
             if matrix.shape not in ((4, 4), (3, 4)):
                 raise DataError(f"{where}: transform_matrix must be 4x4, got shape {list(matrix.shape)}")
             if matrix.shape == (4, 4) and not np.allclose(matrix[3], [0.0, 0.0, 0.0, 1.0], atol=1e-6):
@@ -131,17 +174,17 @@ class TransformsDataParser(DataParser):
             images.append(rgb)
             masks.append(mask)
             poses.append(matrix[:3, :4])
-            intrinsics.append(_intrinsics(meta, frame, width, height, where))
+            intrinsics.append(_intrinsics(meta, frame, width, height, where, camera_type == PERSPECTIVE))
             paths.append(path)
         has_masks = all(m is not None for m in masks)
         c2w = opengl_to_opencv(torch.tensor(np.stack(poses), dtype=torch.float32))
         fx, fy, cx, cy = torch.tensor(intrinsics, dtype=torch.float32).unbind(-1)
         cameras = Cameras(c2w, fx, fy, cx, cy, size[0], size[1],
-                          camera_type=str(meta.get("camera_type", PERSPECTIVE)),
-                          pixel_offset=float(meta.get("pixel_offset", 0.5)))
+                          camera_type=camera_type,
+                          pixel_offset=_number(meta.get("pixel_offset", 0.5), "pixel_offset", json_path.name))
         cameras, images_np, masks_np = rescale_views(cameras, np.stack(images), np.stack(masks) if has_masks else None,
                                                      self.config.image_scale)
-        radius = float(meta.get("scene_radius", self.config.scene_radius))
+        radius = _number(meta.get("scene_radius", self.config.scene_radius), "scene_radius", json_path.name)
         chosen = float(self.config.scene_radius)
         if "scene_radius" in meta and chosen not in (radius, DataParserConfig.scene_radius):
             raise DataError(f"contradictory scene radius: {json_path.name} says {radius:g}, the options say "
