@@ -45,7 +45,7 @@ from va_plugin.engine.trainer import (
     schedule_steps_of,
     train_run,
 )
-from va_plugin.errors import CheckpointError, ConfigError
+from va_plugin.errors import CheckpointError, ConfigError, DataError
 from va_plugin.eval.evaluate import evaluate_run, ground_truth_mesh_path
 from va_plugin.eval.mesh_render import textured_turntable
 from va_plugin.export.atlas import MAX_TEXTURE_FACES
@@ -202,14 +202,15 @@ def check_training_memory(config: TrainerConfig) -> None:
 
 
 def _train(config: TrainerConfig, progress: Progress | None, on_message: Callable[[str], None] | None,
-           before_training: Callable[[Any], None] | None = None) -> int | None:
-    """:func:`train`'s work in a claimed run folder; the step the run resumed from (None for a fresh run)."""
+           before_training: Callable[[Any], None] | None = None, header: str | None = None) -> int | None:
+    """:func:`train`'s work in a claimed run folder; the step the run resumed from (None for a fresh run).
+    ``header``: a line said once the data has loaded (bad input stays one line: the error alone)."""
     run_dir = Path(config.output_dir)
     say = on_message or _quiet
     trainer = config.setup()
-    line = input_summary(trainer.pipeline, run_dir)
-    if line:
-        say(line)
+    for line in (header, input_summary(trainer.pipeline, run_dir)):
+        if line:
+            say(line)
     if before_training is not None:
         before_training(trainer)
     done = train_run(config, resume=True, trainer=trainer, on_step=progress,
@@ -383,13 +384,26 @@ def has_ground_truth(loaded: LoadedRun) -> bool:
                       is not None)
 
 
-def check_evaluate_options(scene: str | Path | None, mesh_resolution: int, image_scale: float) -> None:
+def check_evaluate_options(scene: str | Path | None, mesh_resolution: int, image_scale: float,
+                           max_views: int | None = None) -> None:
     """Refuse evaluation options that cannot work, before anything is loaded (one line each)."""
     if mesh_resolution < 8 or image_scale <= 0:
         raise ConfigError("--mesh-resolution must be at least 8 and --image-scale positive")
+    if max_views is not None and max_views < 1:
+        raise ConfigError(f"--max-views must be at least 1, got {max_views}")
     if scene is not None and not (Path(scene) / "scene.json").is_file():
         raise ConfigError(f"{scene} holds no scene.json")
     check_mesh_resolution(mesh_resolution, "--mesh-resolution")
+
+
+def check_scorable(loaded: LoadedRun, scene: str | Path | None = None) -> None:
+    """Refuse a run with nothing to score: no held-out views and no ground-truth mesh (of ``scene``, or of
+    the run's own data)."""
+    if loaded.pipeline.datamanager.test is None and \
+            ground_truth_mesh_path(loaded.pipeline, None if scene is None else Path(scene)) is None:
+        data = loaded.config.pipeline.datamanager.dataparser.data
+        raise DataError(f"nothing to score in {loaded.path}: its data {data} has no held-out views and no "
+                        "ground-truth mesh; pass --scene with a scene folder that has them")
 
 
 @_locks_run
@@ -403,8 +417,9 @@ def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, me
     mesh (``mesh``, or marching cubes at ``mesh_resolution``). ``scene``: a scene folder with
     ``scene.json`` other than the run's data. Written to ``RUN/eval.json`` (``output``; None: not
     written); ``render_dir`` also keeps the renders."""
-    check_evaluate_options(scene, mesh_resolution, image_scale)
+    check_evaluate_options(scene, mesh_resolution, image_scale, max_views)
     loaded = load_run(run, device)
+    check_scorable(loaded, scene)
     if loaded.pipeline.datamanager.test is not None:
         cameras = loaded.pipeline.datamanager.test.cameras
         check_render_size(cameras.width, cameras.height, image_scale, "--image-scale")
@@ -514,7 +529,6 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     check_training_memory(config)
     say = on_message or _quiet
     with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config), command="recon"):
-        say(f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} -> {run_dir}")
         if threads > 0:
             torch.set_num_threads(threads)
 
@@ -522,7 +536,9 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
             if texture:
                 check_texture_memory(texture_size, len(trainer.pipeline.datamanager.train))
 
-        resumed_from = _train(config, progress, say, before_training=check_bake)
+        resumed_from = _train(config, progress, say, before_training=check_bake,
+                              header=f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} "
+                                     f"-> {run_dir}")
         loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
         say(f"extracting the mesh ({mesh_resolution}^3 grid)")
         if texture:

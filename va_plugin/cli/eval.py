@@ -7,7 +7,7 @@ import sys
 import time
 from pathlib import Path
 
-from va_plugin.api import EVAL_FILE, check_evaluate_options, evaluate, load_run, write_json
+from va_plugin.api import EVAL_FILE, check_evaluate_options, check_scorable, evaluate, load_run, write_json
 from va_plugin.cli.common import friendly_errors
 from va_plugin.eval.mesh_render import check_supersample, textured_mesh_metrics
 from va_plugin.export.mesh import extract_mesh
@@ -43,12 +43,13 @@ def build_parser() -> argparse.ArgumentParser:
 @friendly_errors
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
-    check_evaluate_options(args.scene, args.mesh_resolution, args.image_scale)
+    check_evaluate_options(args.scene, args.mesh_resolution, args.image_scale, args.max_views)
     if args.texture:
         check_texture_size(args.texture_size)
         check_supersample(args.texture_supersample, "--texture-supersample")
     output = args.output if args.output is not None else args.load_dir / EVAL_FILE
-    loaded = load_run(args.load_dir, args.device) if args.texture else args.load_dir
+    loaded = load_run(args.load_dir, args.device)
+    check_scorable(loaded, args.scene)  # before the mesh of --texture: no work, no eval.json
     mesh = None
     if args.texture:
         mesh = extract_mesh(loaded.pipeline.model, resolution=args.mesh_resolution, with_color=False)

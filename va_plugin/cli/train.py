@@ -99,6 +99,17 @@ def make_config(args: argparse.Namespace, resolve_data: bool = True):
                         progress=not args.no_progress, **object_options(args))
 
 
+def training_summary(method: str, run_dir: Path) -> str:
+    """``trained METHOD for N steps in S s (loss .., psnr .., inv_s ..)``, from the run's last training record;
+    figures the record lacks are left out (and the brackets with them)."""
+    record = (training_records(run_dir) or [{}])[-1]
+    figures = [f"{k} {record[k]:.4g}" for k in ("loss", "psnr", "inv_s")
+               if isinstance(record.get(k), (int, float)) and not isinstance(record.get(k), bool)]
+    steps, seconds = int(record.get("step", 0)), float(record.get("train_seconds", 0.0))
+    text = f"trained {method} for {steps} step{'' if steps == 1 else 's'} in {seconds:.1f} s"
+    return text + (f" ({', '.join(figures)})" if figures else "")
+
+
 def say(line: str) -> None:
     print(line, file=sys.stderr)
 
@@ -120,10 +131,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with --resume",
               file=sys.stderr)
         return EXIT_INTERRUPTED
-    record = (training_records(run_dir) or [{}])[-1]
-    summary = ", ".join(f"{k} {record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record)
-    print(f"trained {config.method_name} for {record.get('step', 0)} steps in {record.get('train_seconds', 0):.1f} s"
-          f"{f' ({summary})' if summary else ''}; run folder {run_dir}")
+    print(f"{training_summary(config.method_name, run_dir)}; run folder {run_dir}")
     if args.export_mesh:
         path = export_mesh(run_dir, texture=False, device=args.device).path
         print(f"mesh written to {path}")

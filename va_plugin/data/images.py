@@ -40,6 +40,12 @@ def decode_image(raw: np.ndarray, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarr
         return cv2.imdecode(raw, flags)
 
 
+def undecodable(path: Path) -> DataError:
+    """The error for an image file that cannot be decoded (empty, corrupt, truncated or not an image)."""
+    empty = "empty, " if Path(path).is_file() and Path(path).stat().st_size == 0 else ""
+    return DataError(f"cannot decode image ({empty}corrupt, truncated or not an image): {path}")
+
+
 def read_image(path: Path) -> np.ndarray:
     """An 8- or 16-bit image file as float32 ``[H, W, C]`` in [0, 1], C = 3 (RGB) or 4 (RGBA);
     :class:`DataError` for a missing, truncated or non-image file."""
@@ -49,7 +55,7 @@ def read_image(path: Path) -> np.ndarray:
     raw = np.fromfile(str(path), dtype=np.uint8)
     image = decode_image(raw)
     if image is None:
-        raise DataError(f"cannot decode image (corrupt, truncated or not an image): {path}")
+        raise undecodable(path)
     if image.dtype == np.uint16:
         image = image.astype(np.float32) / 65535.0
     elif image.dtype == np.uint8:

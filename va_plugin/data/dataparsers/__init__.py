@@ -20,7 +20,7 @@ from va_plugin.data.dataparsers.generators import (
     wonder3d_file,
 )
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
-from va_plugin.data.images import decode_image
+from va_plugin.data.images import decode_image, undecodable
 from va_plugin.data.rigs import RIG_VIEWS, WONDER3D_VIEWS
 from va_plugin.errors import DataError
 
@@ -59,10 +59,11 @@ def _is_grid(path: Path) -> bool:
 
 
 def _is_wonder3d(path: Path) -> bool:
+    """A folder with Wonder3D's ``rgb_000_<view>`` files (any of them: the parser names the missing views)."""
     if not path.is_dir():
         return False
     views = [v for v, _ in WONDER3D_VIEWS]
-    return any(all(wonder3d_file(folder, "rgb", v) for v in views) for folder in (path, path / "masked_colors"))
+    return any(any(wonder3d_file(folder, "rgb", v) for v in views) for folder in (path, path / "masked_colors"))
 
 
 COMMON_OPTIONS = ("background", "scene_radius", "image_scale")  # carried over from a method's dataparser
@@ -87,6 +88,8 @@ def detect_format(path: Path) -> str:
     if len(matches) == 1:
         return matches[0]
     if not matches:
+        if path.is_file() and path.suffix.lower() in IMAGE_SUFFIXES and image_shape(path) is None:
+            raise undecodable(path)
         shape = image_shape(path)
         what = f" (a {shape[1]}x{shape[0]} image)" if shape else ""
         raise DataError(f"cannot tell the format of {path}{what}; expected one of these, or name one with "
