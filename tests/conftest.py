@@ -16,6 +16,18 @@ REPO = Path(__file__).resolve().parents[1]
 SHARED_DATA = REPO.parent / "shared" / "data"
 
 
+CLI_TINY = ["--no-progress", "--device", "cpu", "--steps", "1", "--set", "pipeline.datamanager.rays_per_batch=16",
+            "--set", "pipeline.model.n_samples=4", "--set", "pipeline.model.n_importance=4"]
+"""``va-train`` options of a one-step run with a handful of rays and samples."""
+
+
+def one_line_error(capsys, code, message):
+    """The command exited 2 with one stderr line, ``error: ...`` holding ``message``."""
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 2, err
+    assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
+
+
 @pytest.fixture(scope="session")
 def tiny_scene(tmp_path_factory) -> Path:
     """The default procedural object on the SyncDreamer rig at 24 x 24 px (4 inputs + held-out views);

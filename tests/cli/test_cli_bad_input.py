@@ -7,6 +7,8 @@ import shutil
 import numpy as np
 import pytest
 import torch
+from conftest import CLI_TINY as TINY
+from conftest import one_line_error
 
 from va_plugin.cli import demo as demo_cli
 from va_plugin.cli import eval as eval_cli
@@ -14,15 +16,6 @@ from va_plugin.cli import export as export_cli
 from va_plugin.cli import train as train_cli
 from va_plugin.data.images import write_image
 from va_plugin.engine.trainer import list_checkpoints
-
-TINY = ["--no-progress", "--device", "cpu", "--steps", "1", "--set", "pipeline.datamanager.rays_per_batch=16",
-        "--set", "pipeline.model.n_samples=4", "--set", "pipeline.model.n_importance=4"]
-
-
-def one_line_error(capsys, code, message):
-    err = capsys.readouterr().err.strip().splitlines()
-    assert code == 2, err
-    assert len(err) == 1 and err[0].startswith("error: ") and message in err[0], err
 
 
 def image(root, k=1):
