@@ -10,6 +10,13 @@ kernels to.
 The extension is compiled once per machine with ``torch.utils.cpp_extension`` (a C++ compiler and
 ninja are needed; about a minute) and cached in torch's extension folder. If it cannot be built, a
 warning says why and the PyTorch path is used. ``VA_PLUGIN_HASH_KERNEL=0`` turns the kernels off.
+
+Builds are serialised by an advisory lock (``va_hash_grid.build-lock`` in the extension folder, held with
+``flock``, which the system releases when its holder dies). torch's own ``lock`` file in the build folder
+outlives a killed build and makes every later build wait for it forever; whoever holds the advisory lock
+knows no live build owns such a file, removes it and says so. A build that waits longer than
+``VA_PLUGIN_HASH_KERNEL_WAIT`` seconds (default 600) for another process gives up with a warning and the
+PyTorch path is used.
 """
 
 from __future__ import annotations
@@ -17,11 +24,19 @@ from __future__ import annotations
 import os
 import sys
 import threading
+import time
 import warnings
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import torch
 from torch.autograd.function import once_differentiable
+
+try:
+    import fcntl
+except ImportError:  # not POSIX: builds take no advisory lock
+    fcntl = None
 
 SOURCE = Path(__file__).with_name("hash_kernel.cpp")
 NAME = "va_hash_grid"
@@ -29,6 +44,9 @@ NAME = "va_hash_grid"
 # encoding keeps the PyTorch path's rounding; OpenMP for the threads torch uses.
 CFLAGS = ("-O3", "-march=native", "-ffp-contract=off", "-fopenmp")
 ENV_SWITCH = "VA_PLUGIN_HASH_KERNEL"
+ENV_WAIT = "VA_PLUGIN_HASH_KERNEL_WAIT"
+DEFAULT_WAIT_SECONDS = 600.0
+BUILD_LOCK = f"{NAME}.build-lock"
 
 _lock = threading.Lock()
 _state: dict = {}
@@ -54,17 +72,88 @@ def _build(verbose: bool):
     try:
         from torch.utils import cpp_extension
 
-        if not _built_before(cpp_extension.get_default_build_root()):
-            print("compiling the hash grid's CPU kernels (once per machine, about a minute)", file=sys.stderr,
-                  flush=True)
-        cpp_extension.load(name=NAME, sources=[str(SOURCE)], extra_cflags=list(CFLAGS), extra_ldflags=["-fopenmp"],
-                           is_python_module=False, verbose=verbose)
+        root = extensions_root(cpp_extension.get_default_build_root())
+        with build_lock(root, wait_seconds()) as holder:
+            if holder is None:
+                warnings.warn(f"the fused CPU hash-grid kernels were not built: another process has held "
+                              f"{root / BUILD_LOCK} for {wait_seconds():g} s; using the slower PyTorch path "
+                              f"(set {ENV_WAIT} to wait longer)", RuntimeWarning, stacklevel=3)
+                return None
+            remove_stale_locks(root)
+            if not _built_before(str(root)):
+                print("compiling the hash grid's CPU kernels (once per machine, about a minute)", file=sys.stderr,
+                      flush=True)
+            cpp_extension.load(name=NAME, sources=[str(SOURCE)], extra_cflags=list(CFLAGS),
+                               extra_ldflags=["-fopenmp"], is_python_module=False, verbose=verbose)
         return torch.ops.va_hash_grid
     except Exception as error:  # a missing compiler or ninja, a read-only cache folder, ...
         first_line = str(error).strip().splitlines()[0] if str(error).strip() else type(error).__name__
         warnings.warn(f"the fused CPU hash-grid kernels could not be built ({first_line}); using the slower "
                       f"PyTorch path. Set {ENV_SWITCH}=0 to skip the attempt.", RuntimeWarning, stacklevel=3)
         return None
+
+
+def wait_seconds() -> float:
+    """How long a build waits for another process's build (``VA_PLUGIN_HASH_KERNEL_WAIT``, default 600 s)."""
+    try:
+        return max(0.0, float(os.environ.get(ENV_WAIT, DEFAULT_WAIT_SECONDS)))
+    except ValueError:
+        return DEFAULT_WAIT_SECONDS
+
+
+def extensions_root(default_root: str) -> Path:
+    """torch's extension folder: ``TORCH_EXTENSIONS_DIR``, else its default (``~/.cache/torch_extensions``)."""
+    return Path(os.environ.get("TORCH_EXTENSIONS_DIR") or default_root)
+
+
+@contextmanager
+def build_lock(root: Path, timeout: float) -> Iterator[int | None]:
+    """Hold the advisory build lock of ``root`` (waiting at most ``timeout`` seconds for another holder):
+    yields this process's id, or None when the lock stayed taken. Without ``fcntl`` (not POSIX) there is
+    no lock to take and the build goes ahead."""
+    if fcntl is None:
+        yield os.getpid()
+        return
+    root.mkdir(parents=True, exist_ok=True)
+    fd = os.open(root / BUILD_LOCK, os.O_RDWR | os.O_CREAT, 0o644)
+    try:
+        deadline, said = time.monotonic() + timeout, False
+        while True:
+            try:
+                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                break
+            except BlockingIOError:
+                if time.monotonic() >= deadline:
+                    yield None
+                    return
+                if not said:
+                    print(f"waiting (up to {timeout:g} s) for another process that builds the hash grid's CPU "
+                          f"kernels ({root / BUILD_LOCK})", file=sys.stderr, flush=True)
+                    said = True
+                time.sleep(0.2)
+        os.ftruncate(fd, 0)
+        os.write(fd, f"{os.getpid()}\n".encode())  # who builds, for a curious reader
+        try:
+            yield os.getpid()
+        finally:
+            fcntl.flock(fd, fcntl.LOCK_UN)
+    finally:
+        os.close(fd)
+
+
+def remove_stale_locks(root: Path) -> list[Path]:
+    """Remove torch's ``lock`` files of this extension's build folders under ``root`` (call with the build
+    lock held: no live build owns them, they are left by a build that was killed), each with a note."""
+    removed = []
+    for lock in [root / NAME / "lock", *root.glob(f"*/{NAME}/lock")]:
+        try:
+            lock.unlink()
+        except FileNotFoundError:
+            continue
+        print(f"removed {lock}, left by an interrupted build of the hash grid's CPU kernels", file=sys.stderr,
+              flush=True)
+        removed.append(lock)
+    return removed
 
 
 # The kernels index a level's table with 32-bit integers.
