@@ -12,6 +12,7 @@ from conftest import one_line_error
 
 from va_plugin.api import build_config
 from va_plugin.cli import eval as eval_cli
+from va_plugin.cli import export as export_cli
 from va_plugin.cli import recon as recon_cli
 from va_plugin.cli import train as train_cli
 from va_plugin.data.datamanager import DataManager, DataManagerConfig
@@ -125,3 +126,18 @@ def test_a_cuda_index_the_machine_lacks_is_refused(monkeypatch):
     monkeypatch.setattr(torch.cuda, "device_count", lambda: 2)
     with pytest.raises(ConfigError, match=r"has 2 CUDA device\(s\): cuda:0 to cuda:1"):
         pick_device("cuda:2")
+
+
+@pytest.mark.parametrize("main, argv, message", [
+    (train_cli.main, ["neus", "--views", "5"], "error: argument --views: '5' is not one of 4, 8, 12, 16 or all "
+                                               "(see va-train --help)"),
+    (train_cli.main, ["neus", "--seed", "abc"], "error: argument --seed: invalid int value: 'abc'"),
+    (recon_cli.main, ["x.png", "--quality", "best"], "error: argument --quality: invalid choice: 'best'"),
+    (eval_cli.main, [], "error: the following arguments are required: --load-dir (see va-eval --help)"),
+    (export_cli.main, ["mesh", "--resolution", "many"], "error: argument --resolution: invalid int value"),
+])
+def test_options_argparse_refuses_are_one_line_too(main, argv, message, capsys):
+    with pytest.raises(SystemExit) as stop:
+        main(argv)
+    err = capsys.readouterr().err.strip().splitlines()
+    assert stop.value.code == 2 and len(err) == 1 and err[0].startswith(message), err

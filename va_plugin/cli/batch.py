@@ -21,7 +21,7 @@ from va_plugin.batch.inputs import find_objects
 from va_plugin.batch.job import Evaluation, ObjectJob
 from va_plugin.batch.manifest import SETTINGS_FILE, Manifest
 from va_plugin.batch.summary import contact_sheet, write_summary
-from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, friendly_errors
 from va_plugin.cli.train import add_object_options
 from va_plugin.engine.run_folder import check_writable_folder
 from va_plugin.errors import ConfigError
@@ -32,7 +32,7 @@ EXIT_SOME_FAILED = 1
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="va-batch", description="Reconstruct every object of a folder: train, export the mesh and evaluate "
         "against ground truth where the object has it, one job per object.",
         epilog="Writes OUT/runs/NAME (one va-train run folder per object, with mesh.ply, mesh.glb (textured), "

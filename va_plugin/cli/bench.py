@@ -24,7 +24,7 @@ from va_plugin.bench.presets import BACKBONES, PRESETS, BenchPreset, get_preset
 from va_plugin.bench.report import fmt, machine_info
 from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, run_steps, scene_of
 from va_plugin.bench.store import ResultStore
-from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, friendly_errors
 from va_plugin.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[2]
@@ -54,7 +54,7 @@ def comma_list(text: str, kind=str) -> list[Any]:
 
 
 def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(description=experiment.description,
+    parser = ArgumentParser(description=experiment.description,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--preset", default="quick", choices=sorted(PRESETS),
                         help="; ".join(f"{p.name}: {p.description}" for p in PRESETS.values()))

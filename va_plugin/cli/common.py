@@ -1,7 +1,9 @@
-"""Shared pieces of the command-line entry points: one clear line and exit 2 on user errors."""
+"""Shared pieces of the command-line entry points: one clear line and exit 2 on user errors (bad
+options, as argparse finds them or as the package does, and bad input)."""
 
 from __future__ import annotations
 
+import argparse
 import functools
 import sys
 import warnings
@@ -13,6 +15,14 @@ from va_plugin.utils.interrupts import terminate_as_interrupt
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
+
+
+class ArgumentParser(argparse.ArgumentParser):
+    """argparse whose mistakes (an unknown flag, a missing or mistyped value) read like every other bad option:
+    one line ``error: ...`` saying where the options are listed, exit status 2, no usage block above it."""
+
+    def error(self, message: str):
+        self.exit(EXIT_USER_ERROR, f"error: {message} (see {self.prog} --help)\n")
 
 
 def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
@@ -38,4 +48,4 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
     return wrapper
 
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "check_output_dir", "friendly_errors"]
+__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "ArgumentParser", "check_output_dir", "friendly_errors"]

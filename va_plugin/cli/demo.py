@@ -22,7 +22,7 @@ from va_plugin.api import (
     train,
 )
 from va_plugin.bench.scenes import default_scene
-from va_plugin.cli.common import EXIT_INTERRUPTED, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, friendly_errors
 from va_plugin.data.images import read_image, write_image
 from va_plugin.export.render import render_turntable
 
@@ -31,7 +31,7 @@ DEMO_STEPS: dict = {"neus": 1000}
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="va-demo", description=__doc__.splitlines()[0])
+    parser = ArgumentParser(prog="va-demo", description=__doc__.splitlines()[0])
     parser.add_argument("--method", default="neus", help="registered method to train (default neus)")
     parser.add_argument("--preset", default=None, help="preset of the method")
     parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"), help="run folder")

@@ -8,14 +8,14 @@ import time
 from pathlib import Path
 
 from va_plugin.api import EVAL_FILE, check_evaluate_options, check_scorable, evaluate, load_run, write_json
-from va_plugin.cli.common import friendly_errors
+from va_plugin.cli.common import ArgumentParser, friendly_errors
 from va_plugin.eval.mesh_render import check_supersample, textured_mesh_metrics
 from va_plugin.export.mesh import extract_mesh
 from va_plugin.export.texture import bake_texture, check_texture_size, field_fallback, run_views
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="va-eval", description="Evaluate a trained run (PSNR, SSIM, LPIPS on "
+    parser = ArgumentParser(prog="va-eval", description="Evaluate a trained run (PSNR, SSIM, LPIPS on "
                                      "held-out views; Chamfer distance, volume IoU, F-score of its mesh).")
     parser.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
     parser.add_argument("--scene", type=Path, default=None,

@@ -8,13 +8,13 @@ from pathlib import Path
 
 from va_plugin.analysis.diagnostics import write_diagnostics
 from va_plugin.api import export_mesh, load_run, render
-from va_plugin.cli.common import friendly_errors
+from va_plugin.cli.common import ArgumentParser, friendly_errors
 from va_plugin.errors import ConfigError
 from va_plugin.utils.memory import check_render_size
 
 
 def build_parser() -> argparse.ArgumentParser:
-    parser = argparse.ArgumentParser(prog="va-export", description="Export meshes and renders of a trained run.")
+    parser = ArgumentParser(prog="va-export", description="Export meshes and renders of a trained run.")
     sub = parser.add_subparsers(dest="what", required=True)
     mesh = sub.add_parser("mesh", help="marching-cubes mesh with vertex colors, or textured with --texture")
     mesh.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")

@@ -15,7 +15,7 @@ import sys
 from pathlib import Path
 
 from va_plugin.api import QUALITIES, RECOMMENDED_METHOD, SUMMARY_FILE, TrainingInterrupted, reconstruct
-from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, check_output_dir, friendly_errors
 from va_plugin.cli.train import VIEWS_HELP, parse_views
 from va_plugin.data.dataparsers import FORMATS
 from va_plugin.registry import discover_methods
@@ -23,7 +23,7 @@ from va_plugin.registry import discover_methods
 
 def build_parser(methods) -> argparse.ArgumentParser:
     listing = ", ".join(methods)
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="va-recon",
         description="Turn a multi-view generator's output (SyncDreamer strip, Zero123++ grid, Wonder3D "
                     "folder) or a scene folder into a textured mesh, in one command.",

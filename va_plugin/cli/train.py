@@ -8,7 +8,7 @@ from pathlib import Path
 
 from va_plugin.api import VIEW_COUNTS, TrainingInterrupted, build_config, export_mesh, train
 from va_plugin.bench.scenes import default_scene
-from va_plugin.cli.common import EXIT_INTERRUPTED, check_output_dir, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, check_output_dir, friendly_errors
 from va_plugin.config import format_options
 from va_plugin.data.dataparsers import FORMATS
 from va_plugin.engine.metrics_log import training_records
@@ -21,7 +21,7 @@ def build_parser(methods) -> argparse.ArgumentParser:
         lines.append(f"  {name:<14} {spec.description}")
         lines.extend(f"  {'':<14}   --preset {preset}: {p.description}" for preset, p in sorted(spec.presets.items()))
     listing = "\n".join(lines)
-    parser = argparse.ArgumentParser(
+    parser = ArgumentParser(
         prog="va-train", formatter_class=argparse.RawDescriptionHelpFormatter,
         description="Train a reconstruction method on a scene (neus is the recommended method; va-recon does "
                     "training, textured mesh and turntable in one command).\n\nmethods and their presets:\n" + listing,
