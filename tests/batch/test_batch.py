@@ -53,7 +53,7 @@ def test_local_engine_records_every_object_and_goes_on_after_a_bad_one(reference
     assert code == 1  # one object failed
     rows = summary(out)
     assert list(rows) == ["bowl", "broken", "mug"]
-    assert rows["broken"]["status"] == "failed" and "cannot tell the format" in rows["broken"]["error"]
+    assert rows["broken"]["status"] == "failed" and "cannot decode image" in rows["broken"]["error"]
     assert "\n" not in rows["broken"]["error"] and rows["broken"]["cd"] == ""
     for name in ("mug", "bowl"):
         row = rows[name]
