@@ -49,6 +49,7 @@ from va_plugin.errors import CheckpointError, ConfigError, DataError
 from va_plugin.eval.evaluate import evaluate_run, ground_truth_mesh_path
 from va_plugin.eval.mesh_render import textured_turntable
 from va_plugin.export.atlas import MAX_TEXTURE_FACES
+from va_plugin.export.frame import check_frame, frame_applies, frame_record, frame_transform
 from va_plugin.export.mesh import MESH_FORMATS, extract_mesh, write_mesh
 from va_plugin.export.render import render_test_views, render_turntable
 from va_plugin.export.texture import check_texture_size, texture_run_mesh
@@ -78,6 +79,8 @@ VIEW_COUNTS = (4, 8, 12, 16)
 """SyncDreamer: the training view counts one can ask for (uniform in azimuth), besides ``"all"``."""
 MESH_FILE = "mesh.ply"
 TEXTURED_MESH_FILE = "mesh.glb"
+TEXTURED_OBJ_FILE = "mesh.obj"
+"""Written beside ``mesh.glb`` by default, with ``mesh.mtl`` and ``mesh.png``: the same textured mesh as OBJ."""
 TURNTABLE_DIR = "turntable"
 SUMMARY_FILE = "summary.json"
 EVAL_FILE = "eval.json"
@@ -301,28 +304,66 @@ class MeshFiles:
     """The textured mesh's files: the mesh, then its texture atlas and bake record."""
     report: Any = None
     """The bake's statistics (:class:`~va_plugin.export.texture.BakeReport`), None without a texture."""
+    frame: dict[str, Any] = field(default_factory=dict)
+    """The frame of the GLB / OBJ files written (:func:`~va_plugin.export.frame.frame_record`: its name, up
+    axis and the 4 x 4 transforms to and from the training frame); empty when only PLY was written. The
+    meshes above stay in the training frame."""
 
     @property
     def textured_mesh(self) -> Path | None:
         return self.textured_paths[0] if self.textured_paths else None
 
+    @property
+    def textured_obj(self) -> Path | None:
+        """The textured mesh's OBJ file, when one was written."""
+        return next((p for p in self.textured_paths if p.suffix.lower() == ".obj"), None)
+
+
+def check_faces(faces: int | None, texture: bool) -> None:
+    """Refuse a face count that is not 0 (every face) or at least 4, or one given without a texture."""
+    if faces is None:
+        return
+    if isinstance(faces, bool) or not isinstance(faces, int) or faces < 0 or 0 < faces < 4:
+        raise ConfigError(f"--faces must be 0 (keep every face) or at least 4, got {faces}")
+    if not texture:
+        raise ConfigError("--faces sets the face count of the textured mesh: it needs --texture (va-export mesh), "
+                          "and no --no-texture (va-recon, va-batch)")
+
+
+def faces_option(faces: int | None, max_faces: int | None) -> int | None:
+    """``faces``, or ``max_faces`` (its old name, with a note); both given and different: ConfigError."""
+    if max_faces is None:
+        return faces
+    if faces is not None and faces != max_faces:
+        raise ConfigError(f"faces={faces} and max_faces={max_faces} disagree; max_faces is the old name of faces")
+    warnings.warn("max_faces is now faces; the old name still works for now", stacklevel=3)
+    return max_faces
+
 
 def check_mesh_options(resolution: int, texture: bool = False, texture_size: int = 1024,
-                       output: Path | None = None, max_faces: int | None = None) -> None:
+                       output: Path | list[Path] | None = None, faces: int | None = None,
+                       frame: str = "upright") -> None:
     """Refuse mesh and texture options that cannot work, before any marching cubes (one line each)."""
     if resolution < 2:
         raise ConfigError(f"--resolution must be at least 2, got {resolution}")
-    if output is not None and Path(output).suffix.lower() not in MESH_FORMATS:
-        raise ConfigError(f"unknown mesh format {Path(output).suffix!r}; use one of {', '.join(MESH_FORMATS)}")
+    outputs = [] if output is None else [output] if isinstance(output, (str, Path)) else list(output)
+    for path in outputs:
+        if Path(path).suffix.lower() not in MESH_FORMATS:
+            raise ConfigError(f"unknown mesh format {Path(path).suffix!r}; use one of {', '.join(MESH_FORMATS)}")
     if texture:
         check_texture_size(texture_size)
-        if output is not None:
-            check_texture_output(Path(output))
-        if max_faces is not None and (max_faces < 0 or 0 < max_faces < 4):
-            raise ConfigError(f"--max-faces must be 0 (keep every face) or at least 4, got {max_faces}")
-    elif max_faces is not None:
-        raise ConfigError("--max-faces simplifies the mesh for its texture: it needs --texture")
+        for path in outputs:
+            check_texture_output(Path(path))
+    check_faces(faces, texture)
+    check_frame(frame)
     check_mesh_resolution(resolution)
+
+
+def note_few_faces(faces: int | None, mesh: trimesh.Trimesh) -> None:
+    """A one-line warning when the asked face count is above the mesh's own (the mesh is kept as it is)."""
+    if faces and faces > len(mesh.faces):
+        warnings.warn(f"--faces {faces}: the mesh has only {len(mesh.faces)} faces, so it is textured with "
+                      "those (simplification removes faces, it adds none)", stacklevel=3)
 
 
 def _locks_run(function: Callable[..., Any]) -> Callable[..., Any]:
@@ -339,35 +380,47 @@ def _locks_run(function: Callable[..., Any]) -> Callable[..., Any]:
 
 @_locks_run
 def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution: int = 128,
-                texture_size: int = 1024, fusion: str = "robust", output: str | Path | None = None,
+                texture_size: int = 1024, fusion: str = "robust",
+                output: str | Path | Iterable[str | Path] | None = None,
                 vertex_colors: str | Path | None = MESH_FILE, largest_component: bool = False,
-                max_faces: int | None = None, use_inconsistency: bool = False, harmonise: bool | None = None,
-                progress: bool = False, device: str | None = None, overwrite: bool = False) -> MeshFiles:
+                faces: int | None = None, frame: str = "upright", use_inconsistency: bool = False,
+                harmonise: bool | None = None, progress: bool = False, device: str | None = None,
+                overwrite: bool = False, max_faces: int | None = None) -> MeshFiles:
     """The run's mesh: marching cubes of its field on a ``resolution``^3 grid, written with vertex colors
     to ``RUN/mesh.ply`` (``vertex_colors``: another name, None for none), and with ``texture`` also
-    UV-unwrapped, baked from the input views and written to ``output`` (default ``RUN/mesh.glb``; ``.obj``
-    writes ``.obj`` + ``.mtl`` + ``.png``). ``max_faces``: simplify before the unwrap (default 40000,
-    0 keeps every face); ``fusion``: ``robust`` or ``mean`` per texel; ``harmonise=False`` skips levelling
-    the views' color gains. Relative file names are inside the run folder; an ``output`` file outside a run
-    folder that exists is refused unless ``overwrite``."""
+    UV-unwrapped, baked from the input views and written to ``output`` (default both ``RUN/mesh.glb`` and
+    ``RUN/mesh.obj`` with its ``.mtl`` and ``.png``; one path or several). ``faces``: the textured mesh's
+    face count, by quadric decimation before the unwrap (default at most 40000; 0 keeps every face; a
+    mesh with fewer faces is kept as it is, with a warning); ``max_faces`` is its old name. ``frame``:
+    ``upright`` (GLB and OBJ +Y up, standing on y = 0, centred on the vertical axis) or ``training``
+    (as trained, +Z up); PLY always stays in the training frame. ``fusion``: ``robust`` or ``mean`` per
+    texel; ``harmonise=False`` skips levelling the views' color gains. Relative file names are inside the
+    run folder; an ``output`` file outside a run folder that exists is refused unless ``overwrite``."""
+    faces = faces_option(faces, max_faces)
     run_path = run.path if isinstance(run, LoadedRun) else Path(run)
-    out = None if output is None else run_path / output
-    if texture and out is None:
-        out = run_path / TEXTURED_MESH_FILE
-    check_mesh_options(resolution, texture, texture_size, out, max_faces)
-    for path in (out, None if vertex_colors is None else run_path / vertex_colors):
-        if path is not None:
-            check_output_file(path, run_path, overwrite)
+    if output is None:
+        outs = [run_path / TEXTURED_MESH_FILE, run_path / TEXTURED_OBJ_FILE] if texture else []
+    else:
+        outs = [run_path / o for o in ([output] if isinstance(output, (str, Path)) else output)]
+    check_mesh_options(resolution, texture, texture_size, outs, faces, frame)
+    if texture and not outs:
+        raise ConfigError("output names no file for the textured mesh")
+    for path in [*outs, *([] if vertex_colors is None else [run_path / vertex_colors])]:
+        check_output_file(path, run_path, overwrite)
     loaded = load_run(run, device)
     mesh = extract_mesh(loaded.pipeline.model, resolution=resolution, largest_component=largest_component,
                         with_color=vertex_colors is not None or not texture)
     files = MeshFiles(mesh)
     if vertex_colors is not None:
-        files.path = write_mesh(mesh, run_path / vertex_colors)
+        files.path = write_mesh(mesh, run_path / vertex_colors, frame)
+        if frame_applies(files.path):
+            files.frame = frame_record(frame, frame_transform(mesh.vertices, frame))
     if texture:
+        note_few_faces(faces, mesh)
         files.textured, files.report, files.textured_paths = texture_run_mesh(
-            loaded.pipeline, mesh, out, texture_size, fusion, use_inconsistency, progress=progress,
-            harmonise_views=harmonise, max_faces=MAX_TEXTURE_FACES if max_faces is None else max_faces)
+            loaded.pipeline, mesh, outs, texture_size, fusion, use_inconsistency, progress=progress,
+            harmonise_views=harmonise, max_faces=MAX_TEXTURE_FACES if faces is None else faces, frame=frame)
+        files.frame = frame_record(frame, frame_transform(files.textured.vertices, frame))
     return files
 
 
@@ -434,9 +487,10 @@ def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, me
 @_locks_run
 def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, scale: float = 1.0,
            max_views: int | None = None, frames: int = 24, turntable_resolution: int = 128,
-           device: str | None = None) -> tuple[list[Path], list[Path]]:
+           device: str | None = None, progress: bool = True) -> tuple[list[Path], list[Path]]:
     """Held-out views (or the training views when the run has none) and a turntable of the field, written
-    to ``out_dir`` (default ``RUN/renders``); the held-out files and the turntable files."""
+    to ``out_dir`` (default ``RUN/renders``); the held-out files and the turntable files. ``progress``:
+    progress bars on stderr."""
     if scale <= 0 or frames < 1 or turntable_resolution < 2:
         raise ConfigError("--scale must be positive, --frames at least 1 and --turntable-resolution at least 2")
     loaded = load_run(run, device)
@@ -445,9 +499,10 @@ def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, sc
     check_render_size(views.cameras.width, views.cameras.height, scale)
     check_image_side(turntable_resolution, "--turntable-resolution")
     out = loaded.path / "renders" if out_dir is None else Path(out_dir)
-    held_out = render_test_views(loaded.pipeline, out / "test_views", scale=scale, max_views=max_views)
+    held_out = render_test_views(loaded.pipeline, out / "test_views", scale=scale, max_views=max_views,
+                                 progress=progress)
     turntable = render_turntable(loaded.pipeline.model, out / "turntable", n_frames=frames,
-                                 resolution=turntable_resolution)
+                                 resolution=turntable_resolution, progress=progress)
     return held_out, turntable
 
 
@@ -459,7 +514,8 @@ class Reconstruction:
     mesh: Path
     """``RUN/mesh.ply``: the mesh with vertex colors."""
     textured_mesh: Path | None
-    """``RUN/mesh.glb``: the mesh with its baked texture (None with ``texture=False``)."""
+    """``RUN/mesh.glb``: the mesh with its baked texture, upright unless ``frame="training"`` (None with
+    ``texture=False``)."""
     turntable: Path | None
     """``RUN/turntable/turntable.mp4`` of the textured mesh (None without texture or frames)."""
     summary: Path
@@ -481,6 +537,8 @@ class Reconstruction:
     """The summary as written to ``summary.json``."""
     files: MeshFiles | None = field(default=None, repr=False)
     """The meshes themselves (for pictures of them without reading the files back)."""
+    textured_obj: Path | None = None
+    """``RUN/mesh.obj`` (with ``mesh.mtl`` and ``mesh.png``): the same textured mesh as OBJ."""
 
 
 def reconstruct(input: str | Path, out: str | Path | None = None, method: str = RECOMMENDED_METHOD,
@@ -490,6 +548,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
                 elevation: float | None = None, rig: str | None = None, data_format: str = "auto",
                 resume: bool = False, overwrite: bool = False, texture_size: int = 1024, mesh_resolution: int = 128,
                 turntable_frames: int = 36, fusion: str = "robust", threads: int = 0,
+                faces: int | None = None, frame: str = "upright",
                 evaluate_options: Mapping[str, Any] | None = None,
                 show_progress: bool = False, on_message: Callable[[str], None] | None = None,
                 overrides: Mapping[str, Any] | Iterable[str] | None = None, **more_overrides: Any) -> Reconstruction:
@@ -497,9 +556,11 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
 
     Trains ``method`` (``quality``: ``fast``, ``default`` or ``accurate``; ``preset`` names any preset of
     the method instead) on ``views`` of the input, then writes ``RUN/mesh.ply``, the textured
-    ``RUN/mesh.glb`` and a turntable of it (unless ``texture`` is False), scores the run when the input has
-    ground truth, and writes ``RUN/summary.json``. ``out``: the run folder (default
-    ``outputs/recon/<input name>``); ``evaluate_options``: keywords of :func:`evaluate` for the scores.
+    ``RUN/mesh.glb`` and ``RUN/mesh.obj`` and a turntable of it (unless ``texture`` is False), scores the
+    run when the input has ground truth, and writes ``RUN/summary.json``. ``out``: the run folder (default
+    ``outputs/recon/<input name>``); ``faces`` and ``frame``: as in :func:`export_mesh` (``mesh.glb`` and
+    ``mesh.obj`` upright by default; ``mesh.ply`` in the training frame); ``evaluate_options``: keywords of
+    :func:`evaluate` for the scores.
     ``progress(step, total, losses)``: called after each training step; ``show_progress``: progress bars on
     stderr; ``on_message(line)``: the stage lines. ``overrides`` are config overrides as in
     :func:`build_config`, and so is any other keyword (``pipeline__model__eikonal_weight=0.05``).
@@ -514,6 +575,8 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
         raise ConfigError(f"input not found: {source}")
     if texture:
         check_texture_size(texture_size)
+    check_faces(faces, texture)
+    check_frame(frame)
     if mesh_resolution < 8:
         raise ConfigError(f"--mesh-resolution must be at least 8, got {mesh_resolution}")
     if turntable_frames < 0:
@@ -544,7 +607,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
         if texture:
             say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
         files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
-                            fusion=fusion, progress=show_progress)
+                            fusion=fusion, faces=faces, frame=frame, progress=show_progress)
         turntable = None
         if texture and turntable_frames:
             turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
@@ -561,7 +624,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
                           turntable=turntable, summary=summary[0], seconds=record["seconds"],
                           train_seconds=record["train_seconds"], steps=record["steps"], views=record["views"],
                           masks=record["masks"], config=config, scores=scores, resumed_from_step=resumed_from,
-                          record=record, files=files)
+                          record=record, files=files, textured_obj=files.textured_obj)
 
 
 def _write_summary(loaded: LoadedRun, files: MeshFiles, turntable: Path | None, scores: dict[str, float],
@@ -574,6 +637,9 @@ def _write_summary(loaded: LoadedRun, files: MeshFiles, turntable: Path | None, 
         "masks": train_views.metadata.get("mask_source", "scene's alpha"), "mesh": str(files.path)}
     if files.textured_mesh is not None:
         record["textured_mesh"] = str(files.textured_mesh)
+        record["textured_obj"] = str(files.textured_obj)
+        record["textured_faces"] = len(files.textured.faces)
+        record["mesh_frame"] = files.frame
     if turntable is not None:
         record["turntable"] = str(turntable)
     record["resumed_from_step"] = resumed_from

@@ -75,6 +75,9 @@ def test_a_batch_folder_is_continued_only_with_resume(reference, inputs, capsys)
     # nothing left to run: the manifest holds every object
     assert cli.main([str(inputs), "--method", "neus", "--out", str(out), "--resume", *TINY]) == 1
     assert "0 to run" in capsys.readouterr().err
+    assert cli.main([str(inputs), "--method", "neus", "--out", str(out), "--resume", "--quiet", *TINY]) == 1
+    printed = capsys.readouterr()  # --quiet: the final line alone
+    assert printed.err == "" and len(printed.out.splitlines()) == 1 and "2 ok, 1 failed" in printed.out
 
 
 def _children(pid: int):

@@ -20,14 +20,19 @@ def test_help_lists_methods(capsys):
 
 def test_train_export_mesh_and_render(tiny_scene, tmp_path, capsys):
     run = tmp_path / "run"
-    assert train_cli.main(["neus", "--data", str(tiny_scene), "--output-dir", str(run), "--steps", "2", *TINY]) == 0
+    assert train_cli.main(["neus", "--data", str(tiny_scene), "--output-dir", str(run), "--steps", "2", *TINY,
+                           "--quiet"]) == 0
+    printed = capsys.readouterr()  # --quiet: the summary line alone (no "next:" hint, no events)
+    assert printed.err == "" and len(printed.out.splitlines()) == 1 and printed.out.startswith("trained neus for 2")
     assert export_cli.main(["mesh", "--load-dir", str(run), "--resolution", "32",
                             "--output", str(run / "m.obj")]) in (0, 2)
     out = capsys.readouterr()
     # an untrained field may legitimately have no surface; then the message must say so in one line
     assert (run / "m.obj").exists() or "no surface" in out.err
     assert export_cli.main(["render", "--load-dir", str(run), "--max-views", "1", "--frames", "2",
-                            "--turntable-resolution", "16"]) == 0
+                            "--turntable-resolution", "16", "--quiet"]) == 0
+    printed = capsys.readouterr()  # no progress lines (stderr is no terminal here, so they would be plain lines)
+    assert printed.err == "" and printed.out.splitlines() == [printed.out.strip()] and "wrote 1" in printed.out
     assert (run / "renders" / "turntable" / "turntable.mp4").exists()
     assert (run / "renders" / "test_views" / "view_000.png").exists()
     config = json.loads((run / "config.json").read_text())
@@ -78,6 +83,7 @@ def test_demo_trains_neus_with_its_own_budget_unless_told_otherwise():
 
     default = config()
     assert default.max_steps == demo.DEMO_STEPS.get("neus", methods["neus"].make_config().max_steps)
+    assert default.progress and not config("--quiet").progress  # --quiet: no bars, no events
     assert default.pipeline.model.skip_far_samples
     assert config("--steps", "7").max_steps == 7 and config("--steps", "7").pipeline.model.skip_far_samples
     fast = config("--preset", "fast")  # a preset is taken as it is

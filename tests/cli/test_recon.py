@@ -33,10 +33,18 @@ def test_one_command_writes_a_textured_mesh_from_every_view(strip, tmp_path, cap
     geometry = next(iter(scene.geometry.values()))
     assert geometry.visual.material.baseColorTexture is not None and len(geometry.visual.uv) == len(geometry.vertices)
     assert (out / "turntable" / "turntable.png").is_file() and (out / "mesh.ply").is_file()
+    # mesh.glb and mesh.obj stand upright (+Y up, on y = 0); the frame is in summary.json
+    assert summary["mesh_frame"]["up"] == "+y" and summary["textured_obj"] == str(out / "mesh.obj")
+    for name in ("mesh.glb", "mesh.obj"):
+        loaded = trimesh.load(out / name, force="mesh", process=False)
+        assert abs(loaded.bounds[0][1]) < 1e-6 and len(loaded.faces) == summary["textured_faces"]
     # a second call without --resume refuses to overwrite the run; with it, it continues (nothing to train)
     assert recon.main([str(strip), "--out", str(out), "--steps", "3", *TINY]) == 2
     assert "--resume" in capsys.readouterr().err
-    assert recon.main([str(strip), "--out", str(out), "--steps", "3", "--resume", *TINY]) == 0
+    assert recon.main([str(strip), "--out", str(out), "--steps", "3", "--resume", "--quiet", *TINY]) == 0
+    printed = capsys.readouterr()  # --quiet: the summary alone, no stage lines or progress
+    assert printed.err == "" and printed.out.splitlines() == recon.summary_lines(
+        json.loads((out / "summary.json").read_text()), out)
 
 
 @pytest.mark.parametrize("extra, message", [
@@ -108,4 +116,6 @@ def test_export_mesh_help_says_defaults_and_the_textured_output(capsys):
     with pytest.raises(SystemExit):
         export.build_parser().parse_args(["mesh", "--help"])
     text = " ".join(capsys.readouterr().out.split())
-    assert "RUN/mesh.glb with --texture" in text and "(default 128)" in text and "(default 1024)" in text
+    assert "with --texture RUN/mesh.glb and RUN/mesh.obj" in text
+    assert "(default 128)" in text and "(default 1024)" in text
+    assert "--faces N" in text and "--frame {upright,training}" in text and "--quiet" in text

@@ -28,7 +28,7 @@ def test_export_writes_a_textured_mesh_that_loads(run, tmp_path, suffix, files, 
     code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "64", "--resolution", "24",
                             "--output", str(out), "--device", "cpu"])
     assert code == 0, capsys.readouterr().err
-    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(files + ["m_bake.json", "m_bake.png"])
+    assert sorted(p.name for p in tmp_path.iterdir()) == sorted(files + ["m_bake.json", "m_bake.png", "m_frame.json"])
     loaded = trimesh.load(out, force="mesh")
     assert isinstance(loaded.visual, trimesh.visual.TextureVisuals) and len(loaded.faces) > 0
     record = json.loads((tmp_path / "m_bake.json").read_text())
@@ -36,19 +36,20 @@ def test_export_writes_a_textured_mesh_that_loads(run, tmp_path, suffix, files, 
     assert record["faces_textured"] == len(loaded.faces) <= record["faces_extracted"]
 
 
-def test_export_simplifies_the_mesh_to_max_faces(run, tmp_path, capsys):
+@pytest.mark.parametrize("flag", ["--faces", "--max-faces"])  # --max-faces: its old name
+def test_export_simplifies_the_mesh_to_faces(run, tmp_path, flag, capsys):
     out = tmp_path / "m.glb"
     code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "32", "--resolution", "24",
-                            "--max-faces", "200", "--output", str(out), "--device", "cpu"])
+                            flag, "200", "--output", str(out), "--device", "cpu"])
     printed = capsys.readouterr().out
     assert code == 0
     record = json.loads((tmp_path / "m_bake.json").read_text())
-    assert record["faces_textured"] <= 200 < record["faces_extracted"], record
+    assert record["faces_textured"] == 200 < record["faces_extracted"], record
     assert "simplified from" in printed and len(trimesh.load(out, force="mesh").faces) == record["faces_textured"]
 
 
-def test_max_faces_without_texture_is_refused(run, tmp_path, capsys):
-    code = export_cli.main(["mesh", "--load-dir", str(run), "--max-faces", "100", "--output", str(tmp_path / "m.ply")])
+def test_faces_without_texture_is_refused(run, tmp_path, capsys):
+    code = export_cli.main(["mesh", "--load-dir", str(run), "--faces", "100", "--output", str(tmp_path / "m.ply")])
     one_line_error(capsys, code, "needs --texture")
     assert list(tmp_path.iterdir()) == []
 
@@ -57,8 +58,8 @@ def test_max_faces_without_texture_is_refused(run, tmp_path, capsys):
     (["--texture-size", "100"], "power of two"),
     (["--texture-size", "65536"], "power of two"),
     (["--output", "{tmp}/m.ply"], "not '.ply'"),
-    (["--max-faces", "-1"], "--max-faces must be 0"),
-    (["--max-faces", "3"], "--max-faces must be 0"),
+    (["--faces", "-1"], "--faces must be 0"),
+    (["--faces", "3"], "--faces must be 0"),
 ])
 def test_bad_texture_options_are_refused_before_any_work(run, tmp_path, argv, message, capsys):
     argv = [a.replace("{tmp}", str(tmp_path)) for a in argv]
@@ -104,3 +105,35 @@ def test_eval_default_rays_a_pixel_is_the_scoring_default():
     # the package's scoring default (one ray through each pixel centre, as the field's renders)
     from va_plugin.eval.mesh_render import SCORE_SUPERSAMPLE
     assert eval_cli.build_parser().parse_args(["--load-dir", "x"]).texture_supersample == SCORE_SUPERSAMPLE
+
+
+def test_default_export_writes_glb_and_obj_upright_and_ply_as_trained(run, tmp_path, capsys):
+    import shutil
+
+    run = shutil.copytree(run, tmp_path / "run")
+    assert export_cli.main(["mesh", "--load-dir", str(run), "--resolution", "24", "--device", "cpu", "--quiet"]) == 0
+    assert export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "32", "--resolution", "24",
+                            "--device", "cpu", "--quiet"]) == 0
+    printed = capsys.readouterr()
+    assert printed.err == "" and len(printed.out.splitlines()) == 2, printed  # --quiet: the two summaries only
+    assert "upright" in printed.out.splitlines()[1]
+    for name in ("mesh.ply", "mesh.glb", "mesh.obj", "mesh.mtl", "mesh.png", "mesh_frame.json", "mesh_bake.json"):
+        assert (run / name).is_file(), name
+    record = json.loads((run / "mesh_frame.json").read_text())
+    to_file = np.array(record["training_to_file"])
+    trained = trimesh.load(run / "mesh.ply", process=False)  # as marching cubes left it: the training frame
+    for name in ("mesh.glb", "mesh.obj"):
+        loaded = trimesh.load(run / name, force="mesh", process=False)
+        assert abs(loaded.bounds[0][1]) < 1e-6 and np.allclose(loaded.bounds.mean(0)[[0, 2]], 0, atol=1e-6)
+        moved = trimesh.transform_points(trained.vertices, to_file)
+        assert np.allclose(loaded.bounds, [moved.min(0), moved.max(0)], atol=1e-5), name
+        assert loaded.volume > 0  # outward normals
+
+
+def test_more_faces_than_the_mesh_has_keeps_it_with_a_note(run, tmp_path, capsys):
+    code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "16", "--resolution", "24",
+                            "--faces", "1000000", "--output", str(tmp_path / "m.glb"), "--device", "cpu", "--quiet"])
+    err = capsys.readouterr().err.strip().splitlines()
+    assert code == 0 and len(err) == 1 and "--faces 1000000: the mesh has only" in err[0], err
+    record = json.loads((tmp_path / "m_bake.json").read_text())
+    assert record["faces_textured"] == record["faces_extracted"] < 1000000

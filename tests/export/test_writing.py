@@ -19,7 +19,7 @@ def test_written_files_load_back_with_their_texture(tmp_path, suffix):
     names = sorted(p.name for p in tmp_path.iterdir())
     assert names == sorted(p.name for p in written)
     if suffix == ".obj":
-        assert names == ["cube.mtl", "cube.obj", "cube.png"]
+        assert names == ["cube.mtl", "cube.obj", "cube.png", "cube_frame.json"]
         assert "cube.png" in (tmp_path / "cube.mtl").read_text()
     loaded = trimesh.load(tmp_path / f"cube{suffix}", force="mesh")
     image = np.asarray(loaded.visual.material.to_simple().image if suffix == ".glb"

@@ -3,12 +3,12 @@
 :func:`run_object` is the one job function of every engine (the engines only decide where and when it
 runs). It trains the object's run folder (continuing from its newest checkpoint when a killed batch left
 one), loads the finished run back as ``va-export`` and ``va-eval`` do, writes ``mesh.ply`` (vertex
-colors), the textured ``mesh.glb`` (unless the batch turned textures off), a small grey picture of the
-mesh (``thumbnail.png``, for the contact sheet), optionally a turntable of the textured mesh, and evaluates
-the run when the object has ground truth. :func:`reconstruct` is that work (:func:`va_plugin.api.reconstruct`,
-which ``va-recon`` calls, and the thumbnail); :func:`run_object` wraps it for a batch: it never raises for a
-bad object (the record says ``failed`` with the error's one line) and sends the traceback and everything
-the job prints to the object's ``batch.log``.
+colors), the textured ``mesh.glb`` and ``mesh.obj`` (unless the batch turned textures off), a small grey
+picture of the mesh (``thumbnail.png``, for the contact sheet), optionally a turntable of the textured
+mesh, and evaluates the run when the object has ground truth. :func:`reconstruct` is that work
+(:func:`va_plugin.api.reconstruct`, which ``va-recon`` calls, and the thumbnail); :func:`run_object` wraps
+it for a batch: it never raises for a bad object (the record says ``failed`` with the error's one line)
+and sends the traceback and everything the job prints to the object's ``batch.log``.
 """
 
 from __future__ import annotations
@@ -65,6 +65,11 @@ class ObjectJob:
     """Frames of a turntable of the textured mesh (``RUN/turntable/``); 0: none."""
     progress: bool = False
     """Progress bars for training, bake and turntable (off in batches, whose jobs log to a file)."""
+    faces: int | None = None
+    """Face count of the textured mesh (``va-export mesh --faces``); None: at most 40000."""
+    frame: str = "upright"
+    """Frame of ``mesh.glb`` / ``mesh.obj`` (``va-export mesh --frame``); ``mesh.ply`` stays in the training
+    frame."""
 
 
 def _one_line(exc: BaseException) -> str:
@@ -105,12 +110,14 @@ def reconstruct(job: ObjectJob, on_message=None) -> dict[str, Any]:
     result = api.reconstruct(
         job.data, job.run_dir, job.method, views=job.options.get("views") or "all", texture=job.texture_size > 0,
         texture_size=job.texture_size or 1024, fusion=job.fusion, mesh_resolution=settings.mesh_resolution,
-        turntable_frames=job.turntable_frames, threads=job.threads, show_progress=job.progress,
+        turntable_frames=job.turntable_frames, threads=job.threads, faces=job.faces, frame=job.frame,
+        show_progress=job.progress,
         on_message=on_message, resume=True, overwrite=True,  # runs/<name> is the batch's own (its batch.log)
         evaluate_options={
             "image_scale": settings.image_scale, "max_views": settings.max_views, "n_samples": settings.n_samples},
         **{name: value for name, value in job.options.items() if name != "views"})
-    out = {key: value for key, value in result.record.items() if key not in ("input", "method", "quality", "seconds")}
+    dropped = ("input", "method", "quality", "seconds", "mesh_frame")  # the frame: in the run's summary.json
+    out = {key: value for key, value in result.record.items() if key not in dropped}
     out["thumbnail"] = str(write_thumbnail(result.files.mesh, job))
     return out
 

@@ -15,13 +15,19 @@ from typing import Any
 
 from tqdm import tqdm
 
-from va_plugin.api import build_config
+from va_plugin.api import build_config, check_faces
 from va_plugin.batch.engines import ENGINES, import_ray, run_local, run_ray
 from va_plugin.batch.inputs import find_objects
 from va_plugin.batch.job import Evaluation, ObjectJob
 from va_plugin.batch.manifest import SETTINGS_FILE, Manifest
 from va_plugin.batch.summary import contact_sheet, write_summary
-from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, friendly_errors
+from va_plugin.cli.common import (
+    EXIT_INTERRUPTED,
+    ArgumentParser,
+    add_mesh_file_options,
+    add_quiet_option,
+    friendly_errors,
+)
 from va_plugin.cli.train import add_object_options
 from va_plugin.engine.run_folder import check_writable_folder
 from va_plugin.errors import ConfigError
@@ -35,7 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(
         prog="va-batch", description="Reconstruct every object of a folder: train, export the mesh and evaluate "
         "against ground truth where the object has it, one job per object.",
-        epilog="Writes OUT/runs/NAME (one va-train run folder per object, with mesh.ply, mesh.glb (textured), "
+        epilog="Writes OUT/runs/NAME (one va-train run folder per object, with mesh.ply, mesh.glb and mesh.obj "
+               "(textured, +Y up), "
                "thumbnail.png, eval.json and batch.log), OUT/manifest.jsonl, OUT/summary.csv, OUT/summary.md and "
                "OUT/contact_sheet.png. "
                "The options after --no-progress are va-train's and hold for every object.")
@@ -63,12 +70,14 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--eval-samples", type=int, default=100_000,
                         help="surface samples per mesh for the Chamfer distance and F-score")
     parser.add_argument("--no-texture", action="store_true",
-                        help="skip the textured mesh (RUN/mesh.glb, va-export mesh --texture); "
+                        help="skip the textured mesh (RUN/mesh.glb and mesh.obj, va-export mesh --texture); "
                              "mesh.ply is always written")
     parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
     parser.add_argument("--fusion", choices=("robust", "mean"), default="robust",
                         help="how the texture fuses disagreeing views (as va-export mesh --fusion)")
+    add_mesh_file_options(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet_option(parser)
     add_object_options(parser)
     return parser
 
@@ -96,6 +105,7 @@ def check_options(args: argparse.Namespace) -> None:
         raise ConfigError("--retry-failed goes with --resume")
     if not args.no_texture:
         check_texture_size(args.texture_size)
+    check_faces(args.faces, not args.no_texture)
     check_writable_folder(args.out, flag="--out", inputs=[args.inputs], overwrite=args.overwrite,
                           marker=SETTINGS_FILE)
     if args.engine == "ray":
@@ -119,10 +129,15 @@ def main(argv: list[str] | None = None) -> int:
     options = {name: getattr(args, name) for name in object_option_names()}
     evaluation = Evaluation(args.mesh_resolution, args.eval_image_scale, args.eval_max_views, args.eval_samples)
     texture_size = 0 if args.no_texture else args.texture_size
-    manifest = Manifest(out, {"method": args.method, "options": options, "evaluation": asdict(evaluation),
-                              "texture_size": texture_size, "fusion": args.fusion}, args.resume)
+    settings = {"method": args.method, "options": options, "evaluation": asdict(evaluation),
+                "texture_size": texture_size, "fusion": args.fusion}
+    # the mesh-file settings only when not the defaults, so batches started before they existed resume
+    settings.update({k: v for k, v in (("faces", args.faces), ("frame", args.frame))
+                     if v != {"faces": None, "frame": "upright"}[k]})
+    manifest = Manifest(out, settings, args.resume)
     jobs = [ObjectJob(o.name, o.path, out / "runs" / o.name, args.method, options, args.threads, evaluation,
-                      texture_size, args.fusion) for o in objects if not manifest.finished(o.name, args.retry_failed)]
+                      texture_size, args.fusion, faces=args.faces, frame=args.frame)
+            for o in objects if not manifest.finished(o.name, args.retry_failed)]
     names = [o.name for o in objects]
 
     def ordered() -> list[dict[str, Any]]:
@@ -130,17 +145,19 @@ def main(argv: list[str] | None = None) -> int:
 
     engine = (f"Ray ({args.ray_address or 'local instance'}), {args.threads} CPU(s) a job" if args.engine == "ray"
               else f"{min(workers, max(1, len(jobs)))} worker(s) x {args.threads} thread(s)")
-    print(f"va-batch: {len(objects)} objects, {len(objects) - len(jobs)} already done, {len(jobs)} to run on "
-          f"{engine}; {args.method} -> {out}", file=sys.stderr)
+    if not args.quiet:
+        print(f"va-batch: {len(objects)} objects, {len(objects) - len(jobs)} already done, {len(jobs)} to run on "
+              f"{engine}; {args.method} -> {out}", file=sys.stderr)
     bar = progress_bar(total=len(objects), initial=len(objects) - len(jobs), unit="object", desc="va-batch",
-               disable=args.no_progress, dynamic_ncols=True)
+                       disable=args.no_progress or args.quiet, dynamic_ncols=True)
 
     def on_done(record: dict[str, Any]) -> None:
         manifest.add(record)
         write_summary(out, ordered())
         bar.update(1)
         bar.set_postfix(failed=sum(r["status"] != "ok" for r in manifest.records.values()))
-        tqdm.write(_result_line(record), file=sys.stderr)
+        if not args.quiet:
+            tqdm.write(_result_line(record), file=sys.stderr)
 
     started = time.perf_counter()
     try:

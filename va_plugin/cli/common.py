@@ -11,6 +11,7 @@ from collections.abc import Callable
 
 from va_plugin.engine.run_folder import check_output_dir
 from va_plugin.errors import VAError, one_line_warning
+from va_plugin.export.frame import FRAMES
 from va_plugin.utils.interrupts import terminate_as_interrupt
 
 EXIT_USER_ERROR = 2
@@ -48,4 +49,25 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
     return wrapper
 
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "ArgumentParser", "check_output_dir", "friendly_errors"]
+def add_quiet_option(parser: argparse.ArgumentParser) -> None:
+    """``--quiet``: only the final summary is printed (warnings and errors still show)."""
+    parser.add_argument("--quiet", action="store_true",
+                        help="print only the final summary: no progress bars or lines, no stage lines or events "
+                             "(warnings and errors still show)")
+
+
+def add_mesh_file_options(parser: argparse.ArgumentParser, *names: str) -> None:
+    """``--faces N`` (also spelt ``names``, e.g. an old name) and ``--frame upright|training``: the face count
+    and the frame of the textured mesh files."""
+    parser.add_argument("--faces", *names, dest="faces", type=int, default=None, metavar="N",
+                        help="face count of the textured mesh: quadric decimation to N faces before the UV unwrap "
+                             "(default: at most 40000; 0 keeps every face; a mesh with fewer faces is kept as "
+                             "it is, with a warning)")
+    parser.add_argument("--frame", choices=FRAMES, default="upright",
+                        help="frame of the GLB and OBJ files: upright (+Y up, standing on y = 0, centred on the "
+                             "vertical axis, as glTF and 3D tools expect) or training (+Z up, as trained); "
+                             "PLY stays in the training frame (default %(default)s)")
+
+
+__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "ArgumentParser", "add_mesh_file_options", "add_quiet_option",
+           "check_output_dir", "friendly_errors"]

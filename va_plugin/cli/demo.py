@@ -22,7 +22,7 @@ from va_plugin.api import (
     train,
 )
 from va_plugin.bench.scenes import default_scene
-from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, add_quiet_option, friendly_errors
 from va_plugin.data.images import read_image, write_image
 from va_plugin.export.render import render_turntable
 
@@ -39,9 +39,10 @@ def build_parser() -> argparse.ArgumentParser:
                         help="step budget (default: the preset's or the method's own)")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
     parser.add_argument("--resolution", type=int, default=256, help="image size of the default scene")
-    parser.add_argument("--no-progress", action="store_true")
+    parser.add_argument("--no-progress", action="store_true", help="no progress bars")
     parser.add_argument("--overwrite", action="store_true",
                         help="write into --output-dir even when it holds other files or another run")
+    add_quiet_option(parser)
     return parser
 
 
@@ -58,16 +59,21 @@ def demo_config(args: argparse.Namespace, resolve_data: bool = True):
     preset or ``--steps`` is asked for."""
     steps = args.steps if args.steps is not None or args.preset else DEMO_STEPS.get(args.method)
     return build_config(args.method, default_scene(args.resolution) if resolve_data else None, preset=args.preset,
-                        steps=steps, device=args.device, out=args.output_dir, progress=not args.no_progress)
+                        steps=steps, device=args.device, out=args.output_dir, progress=show_progress(args))
+
+
+def show_progress(args: argparse.Namespace) -> bool:
+    return not (args.no_progress or args.quiet)
 
 
 @friendly_errors
 def main(argv: list[str] | None = None) -> int:
     args = build_parser().parse_args(argv)
     config = demo_config(args)
-    print(f"default scene: {default_scene(args.resolution)}")
+    if not args.quiet:
+        print(f"default scene: {default_scene(args.resolution)}")
     try:
-        run = train(config, resume=True, overwrite=args.overwrite, on_message=print)
+        run = train(config, resume=True, overwrite=args.overwrite, on_message=None if args.quiet else print)
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; run va-demo again to continue",
               file=sys.stderr)
@@ -75,13 +81,15 @@ def main(argv: list[str] | None = None) -> int:
     loaded = load_run(run, args.device)
     files = export_mesh(loaded, texture=False, resolution=128)
     # the mesh just written is the one scored, and the scored views are the ones saved: nothing twice
-    result = evaluate(loaded, image_scale=0.5, max_views=4, progress=not args.no_progress, mesh=files.mesh,
+    result = evaluate(loaded, image_scale=0.5, max_views=4, progress=show_progress(args), mesh=files.mesh,
                       render_dir=run / "renders" / "test_views")
     frames = render_turntable(loaded.pipeline.model, run / "renders" / "turntable", n_frames=8, resolution=128,
-                              progress=not args.no_progress)
+                              progress=show_progress(args))
     sheet = contact_sheet([f for f in frames if f.suffix == ".png"], run / "turntable.png")
     steps, seconds = int(loaded.state["step"]), float(loaded.state["train_seconds"])
-    print(f"\n{config.method_name} on the default scene: {steps} steps, {seconds:.0f} s of training")
+    if not args.quiet:
+        print()
+    print(f"{config.method_name} on the default scene: {steps} steps, {seconds:.0f} s of training")
     print("  Chamfer distance {cd:.4f}, volume IoU {iou:.3f}, F-score@0.02 {fscore:.3f}".format(**result))
     lp = f", LPIPS {result['lpips']:.3f}" if "lpips" in result else ""
     print(f"  held-out views (128 px): PSNR {result['psnr']:.2f} dB, SSIM {result['ssim']:.3f}{lp}")

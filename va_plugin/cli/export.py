@@ -8,7 +8,7 @@ from pathlib import Path
 
 from va_plugin.analysis.diagnostics import write_diagnostics
 from va_plugin.api import export_mesh, load_run, render
-from va_plugin.cli.common import ArgumentParser, friendly_errors
+from va_plugin.cli.common import ArgumentParser, add_mesh_file_options, add_quiet_option, friendly_errors
 from va_plugin.errors import ConfigError
 from va_plugin.utils.memory import check_render_size
 
@@ -19,7 +19,8 @@ def build_parser() -> argparse.ArgumentParser:
     mesh = sub.add_parser("mesh", help="marching-cubes mesh with vertex colors, or textured with --texture")
     mesh.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
     mesh.add_argument("--output", type=Path, default=None,
-                      help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply; RUN/mesh.glb with --texture)")
+                      help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply; with --texture RUN/mesh.glb and "
+                           "RUN/mesh.obj with its .mtl and .png)")
     mesh.add_argument("--overwrite", action="store_true", help="replace an existing --output file outside the run")
     mesh.add_argument("--resolution", type=int, default=128,
                       help="marching-cubes grid resolution (default %(default)s)")
@@ -28,9 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
                       help="UV-unwrap the mesh and bake a texture from the input views (.glb or .obj+.mtl+.png)")
     mesh.add_argument("--texture-size", type=int, default=1024,
                       help="texture side in texels, a power of two (default %(default)s)")
-    mesh.add_argument("--max-faces", type=int, default=None,
-                      help="with --texture: simplify the mesh to at most this many faces before the UV unwrap "
-                      "(default 40000; 0 keeps every face)")
+    add_mesh_file_options(mesh, "--max-faces")  # --max-faces: the old name of --faces
     mesh.add_argument("--fusion", choices=("robust", "mean"), default="robust",
                       help="how disagreeing views are fused per texel: robust consensus or weighted mean "
                       "(default %(default)s)")
@@ -51,6 +50,7 @@ def build_parser() -> argparse.ArgumentParser:
     diag.add_argument("--scale", type=float, default=0.5, help="resolution factor of the inconsistency maps")
     for p in (mesh, render, diag):
         p.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")
+        add_quiet_option(p)
     return parser
 
 
@@ -64,7 +64,7 @@ def main(argv: list[str] | None = None) -> int:
         check_render_size(loaded.pipeline.datamanager.train.cameras.width,
                           loaded.pipeline.datamanager.train.cameras.height, args.scale)
         out_dir = args.output_dir if args.output_dir is not None else args.load_dir
-        written = write_diagnostics(loaded.pipeline, out_dir, scale=args.scale, progress=True)
+        written = write_diagnostics(loaded.pipeline, out_dir, scale=args.scale, progress=not args.quiet)
         if not written:
             raise ConfigError("nothing to show: the run is not view-adaptive, or its adaptive phases never ran "
                               "(see view_residuals.json in the run folder)")
@@ -72,31 +72,41 @@ def main(argv: list[str] | None = None) -> int:
         return 0
     out_dir = args.output_dir if args.output_dir is not None else args.load_dir / "renders"
     views, frames = render(args.load_dir, out_dir, scale=args.scale, max_views=args.max_views, frames=args.frames,
-                           turntable_resolution=args.turntable_resolution, device=args.device)
+                           turntable_resolution=args.turntable_resolution, device=args.device,
+                           progress=not args.quiet)
     print(f"wrote {len(views)} held-out views and {len(frames) - 1} turntable frames (+ video) to {out_dir}")
     return 0
 
 
 def export_mesh_command(args: argparse.Namespace) -> int:
     """``va-export mesh``: the mesh with vertex colors, or the textured mesh with ``--texture``."""
-    output = args.output if args.output is not None else args.load_dir / ("mesh.glb" if args.texture else "mesh.ply")
+    output = None if args.output is None else args.output.resolve()
+    plain = output if output is not None else args.load_dir / "mesh.ply"
     files = export_mesh(args.load_dir, texture=args.texture, resolution=args.resolution,
-                        texture_size=args.texture_size, fusion=args.fusion, output=None if not args.texture
-                        else output.resolve(), vertex_colors=None if args.texture else output.resolve(),
-                        largest_component=args.largest_component, max_faces=args.max_faces,
+                        texture_size=args.texture_size, fusion=args.fusion, output=output if args.texture else None,
+                        vertex_colors=None if args.texture else plain.resolve(),
+                        largest_component=args.largest_component, faces=args.faces, frame=args.frame,
                         use_inconsistency=args.use_inconsistency, harmonise=False if args.no_harmonise else None,
-                        progress=True, device=args.device, overwrite=args.overwrite)
+                        progress=not args.quiet, device=args.device, overwrite=args.overwrite)
     mesh = files.mesh
+    frame = f" ({frame_words(files.frame)})" if files.frame else ""
     if not args.texture:
-        print(f"mesh with {len(mesh.vertices)} vertices and {len(mesh.faces)} faces written to {files.path}")
+        print(f"mesh with {len(mesh.vertices)} vertices and {len(mesh.faces)} faces written to {files.path}{frame}")
         return 0
     textured, report = files.textured, files.report
     seen = report.seen / max(report.covered, 1)
     simplified = f" (simplified from {len(mesh.faces)})" if len(textured.faces) < len(mesh.faces) else ""
     print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces{simplified} "
-          f"and a {args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view) written to "
+          f"and a {args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view){frame} written to "
           + ", ".join(str(p) for p in files.textured_paths))
     return 0
+
+
+def frame_words(record: dict) -> str:
+    """A frame record (:func:`~va_plugin.export.frame.frame_record`) in a few words."""
+    if record["frame"] == "upright":
+        return "upright: +Y up, standing on y = 0"
+    return "training frame: +Z up"
 
 
 if __name__ == "__main__":

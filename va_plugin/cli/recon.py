@@ -1,9 +1,10 @@
 """``va-recon INPUT``: one command from a generator's output (or a scene folder) to a textured mesh.
 
 It detects the input's format, trains the recommended method on every view the input has, and writes
-into the output folder the mesh (``mesh.ply``), the textured mesh (``mesh.glb``, which viewers open as it
-is), a turntable of it (``turntable/turntable.mp4`` and ``turntable/turntable.png``) and ``summary.json``;
-it ends by printing what to open. It runs the same job as each object of ``va-batch``
+into the output folder the mesh (``mesh.ply``, in the training frame), the textured mesh (``mesh.glb``,
+which viewers open as it is, and ``mesh.obj`` with ``mesh.mtl`` and ``mesh.png``; both upright), a
+turntable of it (``turntable/turntable.mp4`` and ``turntable/turntable.png``) and ``summary.json``; it ends
+by printing what to open (``--quiet``: only that). It runs the same job as each object of ``va-batch``
 (:func:`va_plugin.api.reconstruct`). Exit status: 0 done, 2 bad command or input (one line, checked
 before any training, nothing written), 130 interrupted (continue with ``--resume``).
 """
@@ -15,7 +16,14 @@ import sys
 from pathlib import Path
 
 from va_plugin.api import QUALITIES, RECOMMENDED_METHOD, SUMMARY_FILE, TrainingInterrupted, reconstruct
-from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, check_output_dir, friendly_errors
+from va_plugin.cli.common import (
+    EXIT_INTERRUPTED,
+    ArgumentParser,
+    add_mesh_file_options,
+    add_quiet_option,
+    check_output_dir,
+    friendly_errors,
+)
 from va_plugin.cli.train import VIEWS_HELP, parse_views
 from va_plugin.data.dataparsers import FORMATS
 from va_plugin.registry import discover_methods
@@ -27,7 +35,8 @@ def build_parser(methods) -> argparse.ArgumentParser:
         prog="va-recon",
         description="Turn a multi-view generator's output (SyncDreamer strip, Zero123++ grid, Wonder3D "
                     "folder) or a scene folder into a textured mesh, in one command.",
-        epilog=f"Writes OUT/mesh.ply, OUT/mesh.glb (textured), OUT/turntable/ and OUT/summary.json. "
+        epilog=f"Writes OUT/mesh.ply, OUT/mesh.glb and OUT/mesh.obj (textured, +Y up), OUT/turntable/ and "
+               "OUT/summary.json. "
                f"Methods: {listing}; neus is the recommended one (va-neus is the paper's view-adaptive "
                "variant: slower, and on our benchmarks no more accurate). Step by step: va-train, then "
                "va-export mesh --texture.")
@@ -44,11 +53,13 @@ def build_parser(methods) -> argparse.ArgumentParser:
                              "instead of the input's alpha or the color key")
     parser.add_argument("--data-format", default="auto", choices=("auto", *FORMATS),
                         help="input format (default auto: detected from the input)")
-    parser.add_argument("--no-texture", action="store_true", help="vertex colors only (no mesh.glb, no turntable)")
+    parser.add_argument("--no-texture", action="store_true",
+                        help="vertex colors only (no mesh.glb or mesh.obj, no turntable)")
     parser.add_argument("--texture-size", type=int, default=1024,
                         help="texture side in texels, a power of two (default 1024)")
     parser.add_argument("--mesh-resolution", type=int, default=128,
                         help="marching-cubes grid of the mesh (default 128)")
+    add_mesh_file_options(parser)
     parser.add_argument("--turntable-frames", type=int, default=36,
                         help="frames of the turntable, 0 for none (default 36)")
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the method's)")
@@ -59,13 +70,15 @@ def build_parser(methods) -> argparse.ArgumentParser:
                         help="write into OUT even when it holds other files (an earlier run there starts again)")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="PATH=VALUE",
                         help="override a config value of the method (va-train METHOD --help-config lists them)")
+    add_quiet_option(parser)
     return parser
 
 
 def summary_lines(record: dict, out: Path) -> list[str]:
     lines = [f"done in {record['seconds']:.0f} s ({record['steps']} steps, {record['train_seconds']:.0f} s "
              f"training); {record['views']} views, masks from the {record['masks']}"]
-    for key, what in (("textured_mesh", "textured mesh"), ("turntable", "turntable"), ("mesh", "mesh")):
+    for key, what in (("textured_mesh", "textured mesh"), ("textured_obj", "OBJ + MTL"), ("turntable", "turntable"),
+                      ("mesh", "mesh")):
         if key in record:
             lines.append(f"  {what:<14} {record[key]}")
     lines.append(f"  {'summary':<14} {out / SUMMARY_FILE}")
@@ -89,8 +102,9 @@ def main(argv: list[str] | None = None) -> int:
                              device=args.device, texture=not args.no_texture, seed=args.seed, masks=args.masks,
                              data_format=args.data_format, resume=args.resume, overwrite=args.overwrite,
                              texture_size=args.texture_size, mesh_resolution=args.mesh_resolution,
-                             turntable_frames=args.turntable_frames,
-                             show_progress=True, on_message=say, overrides=list(args.overrides))
+                             turntable_frames=args.turntable_frames, faces=args.faces, frame=args.frame,
+                             show_progress=not args.quiet, on_message=None if args.quiet else say,
+                             overrides=list(args.overrides))
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with the same "
               "command and --resume", file=sys.stderr)

@@ -8,7 +8,7 @@ from pathlib import Path
 
 from va_plugin.api import VIEW_COUNTS, TrainingInterrupted, build_config, export_mesh, train
 from va_plugin.bench.scenes import default_scene
-from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, check_output_dir, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, add_quiet_option, check_output_dir, friendly_errors
 from va_plugin.config import format_options
 from va_plugin.data.dataparsers import FORMATS
 from va_plugin.engine.metrics_log import training_records
@@ -39,6 +39,7 @@ def build_parser(methods) -> argparse.ArgumentParser:
                         help="write into the run folder even when it holds other files (an earlier run there "
                              "starts again)")
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
+    add_quiet_option(parser)
     parser.add_argument("--export-mesh", action="store_true", help="write mesh.ply into the run folder at the end")
     parser.add_argument("--default-scene-resolution", type=int, default=256,
                         help="image size of the embedded default scene")
@@ -96,7 +97,7 @@ def make_config(args: argparse.Namespace, resolve_data: bool = True):
     if data is None and resolve_data:
         data = default_scene(args.default_scene_resolution)
     return build_config(args.method, data if resolve_data else None, out=args.output_dir, masks=args.masks,
-                        progress=not args.no_progress, **object_options(args))
+                        progress=not (args.no_progress or args.quiet), **object_options(args))
 
 
 def training_summary(method: str, run_dir: Path) -> str:
@@ -126,7 +127,7 @@ def main(argv: list[str] | None = None) -> int:
     run_dir = Path(config.output_dir)
     check_output_dir(run_dir, "--output-dir")
     try:
-        train(config, resume=args.resume, overwrite=args.overwrite, on_message=say)
+        train(config, resume=args.resume, overwrite=args.overwrite, on_message=None if args.quiet else say)
     except TrainingInterrupted as interrupt:
         print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with --resume",
               file=sys.stderr)
@@ -135,7 +136,8 @@ def main(argv: list[str] | None = None) -> int:
     if args.export_mesh:
         path = export_mesh(run_dir, texture=False, device=args.device).path
         print(f"mesh written to {path}")
-    print(f"next: va-export mesh --load-dir {run_dir} --texture   (textured mesh: {run_dir / 'mesh.glb'})")
+    if not args.quiet:
+        print(f"next: va-export mesh --load-dir {run_dir} --texture   (textured mesh: {run_dir / 'mesh.glb'})")
     return 0
 
 

@@ -28,7 +28,7 @@ def simplify_for_texture(mesh: trimesh.Trimesh, max_faces: int | None = MAX_TEXT
     if not max_faces or len(faces) <= max_faces:
         return mesh
     if max_faces < 4:
-        raise VAError(f"--max-faces must be 0 (keep every face) or at least 4, got {max_faces}")
+        raise VAError(f"--faces must be 0 (keep every face) or at least 4, got {max_faces}")
     simple = o3d.geometry.TriangleMesh(o3d.utility.Vector3dVector(np.asarray(mesh.vertices, np.float64)),
                                        o3d.utility.Vector3iVector(faces.astype(np.int32)))
     simple = simple.simplify_quadric_decimation(target_number_of_triangles=int(max_faces))

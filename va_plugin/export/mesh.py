@@ -10,6 +10,7 @@ import torch
 import trimesh
 
 from va_plugin.errors import VAError
+from va_plugin.export.frame import check_frame, frame_applies, frame_transform, write_frame_record
 
 MESH_FORMATS = (".ply", ".obj", ".glb")
 
@@ -117,19 +118,29 @@ def inside_share_at_bound(values: np.ndarray, bound: float, radius: float, spaci
     return float((values[shell] < 0).mean()) if shell.any() else 0.0
 
 
-def write_mesh(mesh: trimesh.Trimesh, path: Path) -> Path:
-    """Write PLY, OBJ or GLB by extension (atomically: a temporary file, then a rename)."""
+def write_mesh(mesh: trimesh.Trimesh, path: Path, frame: str = "upright") -> Path:
+    """Write PLY, OBJ or GLB by extension (atomically: a temporary file, then a rename). GLB and OBJ are
+    written in ``frame`` (:mod:`va_plugin.export.frame`: ``upright`` turns them +Y up, standing on y = 0)
+    with ``<stem>_frame.json`` beside them; PLY stays in the training frame."""
     path = Path(path)
     if path.suffix.lower() not in MESH_FORMATS:
         raise VAError(f"unknown mesh format {path.suffix!r}; use one of {', '.join(MESH_FORMATS)}")
+    check_frame(frame)
     path.parent.mkdir(parents=True, exist_ok=True)
+    transform = None
+    if frame_applies(path):
+        transform = frame_transform(np.asarray(mesh.vertices), frame)
+        mesh = mesh.copy().apply_transform(transform)  # a proper rotation: the faces keep their winding
     tmp = path.with_name(path.stem + ".tmp" + path.suffix)
     mesh.export(tmp)
     tmp.replace(path)
+    if transform is not None:
+        write_frame_record(path, frame, transform)
     return path
 
 
-def export_run_mesh(pipeline, path: Path, resolution: int = 128, largest_component: bool = False) -> Path:
+def export_run_mesh(pipeline, path: Path, resolution: int = 128, largest_component: bool = False,
+                    frame: str = "upright") -> Path:
     """Extract and write the mesh of a trained pipeline."""
     mesh = extract_mesh(pipeline.model, resolution=resolution, largest_component=largest_component)
-    return write_mesh(mesh, path)
+    return write_mesh(mesh, path, frame)

@@ -8,7 +8,7 @@ the atlas charts (:mod:`va_plugin.export.atlas`) are dilated so filtering does n
 from __future__ import annotations
 
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -18,6 +18,7 @@ import trimesh
 
 from va_plugin.errors import VAError
 from va_plugin.export.atlas import MAX_TEXTURE_FACES, dilate, rasterize_uv, simplify_for_texture, unwrap
+from va_plugin.export.frame import check_frame
 from va_plugin.export.fusion import FUSIONS, apply_harmonisation, fuse, harmonise
 from va_plugin.export.inconsistency import inconsistency_maps
 from va_plugin.export.views import Views, view_samples
@@ -181,20 +182,29 @@ def field_fallback(model) -> Fallback:
     return color
 
 
-def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path, size: int = 1024, fusion: str = "robust",
-                     inconsistency: bool = False, progress: bool = True, harmonise_views: bool | None = None,
-                     max_faces: int | None = MAX_TEXTURE_FACES):
+def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Path], size: int = 1024,
+                     fusion: str = "robust", inconsistency: bool = False, progress: bool = True,
+                     harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES,
+                     frame: str = "upright"):
     """Bake ``mesh`` from a loaded run's training views (field color where none sees), write it to
-    ``output`` (GLB or OBJ+MTL+PNG) with ``<stem>_bake.png`` (atlas | per-view weight maps) and
-    ``<stem>_bake.json`` beside it; returns ``(TexturedMesh, BakeReport, written paths)``."""
-    output = Path(output)
-    check_texture_output(output)
+    ``output`` (GLB or OBJ+MTL+PNG; several paths: one bake written in each format) in ``frame`` with
+    ``<stem>_frame.json``, and ``<stem>_bake.png`` (atlas | per-view weight maps) and ``<stem>_bake.json``
+    beside the first; returns ``(TexturedMesh, BakeReport, written paths)``. The TexturedMesh stays in the
+    training frame."""
+    outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
+    for path in outputs:
+        check_texture_output(path)
+    check_frame(frame)
     views = run_views(pipeline, inconsistency=inconsistency, progress=progress)
     textured, report = bake_texture(mesh, views, size=size, fusion=fusion, fallback=field_fallback(pipeline.model),
                                     progress=progress, harmonise_views=harmonise_views, max_faces=max_faces)
-    written = write_textured_mesh(textured, output)
-    written.append(bake_picture(textured, report, output.with_name(output.stem + "_bake.png")))
-    written.append(write_bake_record(report, output.with_name(output.stem + "_bake.json"),
+    written: list[Path] = []
+    for path in outputs:
+        written.extend(p for p in write_textured_mesh(textured, path, frame) if p not in written)
+    first = outputs[0]
+    written.append(bake_picture(textured, report, first.with_name(first.stem + "_bake.png")))
+    written.append(write_bake_record(report, first.with_name(first.stem + "_bake.json"),
                                      {"texture_size": size, "fusion": fusion, "inconsistency_maps": inconsistency,
-                                      "faces_extracted": len(mesh.faces), "faces_textured": len(textured.faces)}))
+                                      "faces_extracted": len(mesh.faces), "faces_textured": len(textured.faces),
+                                      "max_faces": max_faces or 0, "frame": frame}))
     return textured, report, written

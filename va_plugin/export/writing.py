@@ -4,6 +4,7 @@ beside each view's weight map, and the bake's JSON record."""
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -12,6 +13,7 @@ import numpy as np
 
 from va_plugin.data.images import write_image
 from va_plugin.errors import VAError
+from va_plugin.export.frame import apply_transform, frame_record, frame_record_path, frame_transform
 
 if TYPE_CHECKING:
     from va_plugin.export.texture import BakeReport, TexturedMesh
@@ -25,13 +27,16 @@ def check_texture_output(path: Path) -> None:
         raise VAError(f"a textured mesh is written as {' or '.join(TEXTURE_FORMATS)}, not {Path(path).suffix!r}")
 
 
-def write_textured_mesh(textured: TexturedMesh, path: Path) -> list[Path]:
-    """GLB with the texture embedded, or OBJ with its ``.mtl`` and ``.png`` beside it (same stem). Every file
-    is written under a temporary name first and renamed at the end, so a failure leaves nothing half-written."""
+def write_textured_mesh(textured: TexturedMesh, path: Path, frame: str = "upright") -> list[Path]:
+    """GLB with the texture embedded, or OBJ with its ``.mtl`` and ``.png`` beside it (same stem), in
+    ``frame`` (:mod:`va_plugin.export.frame`; only the vertices move, the UVs and the texture stay), with
+    ``<stem>_frame.json`` (the transform from the training frame) last. Every file is written under a
+    temporary name first and renamed at the end, so a failure leaves nothing half-written."""
     path = Path(path)
     check_texture_output(path)
+    transform = frame_transform(textured.vertices, frame)
     path.parent.mkdir(parents=True, exist_ok=True)
-    mesh = textured.to_trimesh()
+    mesh = replace(textured, vertices=apply_transform(textured.vertices, transform)).to_trimesh()
     staged: dict[Path, bytes] = {}
     if path.suffix.lower() == ".glb":
         staged[path] = mesh.export(file_type="glb")
@@ -50,6 +55,7 @@ def write_textured_mesh(textured: TexturedMesh, path: Path) -> list[Path]:
             else:
                 staged[path.with_name(path.stem + Path(name).suffix)] = data
         staged[path] = text.encode()
+    staged[frame_record_path(path)] = json.dumps(frame_record(frame, transform), indent=2).encode()
     temporary = {}
     try:
         for target, data in staged.items():
