@@ -51,6 +51,7 @@ def test_the_documented_example_runs(strip, tmp_path, monkeypatch, capsys):
     assert "runs/strip/mesh.glb" in printed and (tmp_path / "runs/strip/summary.json").is_file()
     assert (tmp_path / "runs/strip-neus/mesh.glb").is_file() and (tmp_path / "runs/strip-views/mesh.ply").is_file()
     assert "step 2/2: loss" in printed
+    assert "lowest point at y = 0.000000" in printed and (tmp_path / "runs/strip-neus/mesh.obj").is_file()
 
 
 def test_reconstruct_writes_what_va_recon_writes(strip, tmp_path):

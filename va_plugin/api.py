@@ -23,6 +23,7 @@ from __future__ import annotations
 import copy
 import functools
 import json
+import math
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
@@ -304,6 +305,9 @@ class MeshFiles:
     """The textured mesh's files: the mesh, then its texture atlas and bake record."""
     report: Any = None
     """The bake's statistics (:class:`~va_plugin.export.texture.BakeReport`), None without a texture."""
+    textured_source: tuple[int, int] = (0, 0)
+    """The grid and the face count of the mesh the textured mesh was decimated from (a finer grid than
+    ``resolution`` when ``faces`` asked for more faces than the mesh had)."""
     frame: dict[str, Any] = field(default_factory=dict)
     """The frame of the GLB / OBJ files written (:func:`~va_plugin.export.frame.frame_record`: its name, up
     axis and the 4 x 4 transforms to and from the training frame); empty when only PLY was written. The
@@ -359,11 +363,34 @@ def check_mesh_options(resolution: int, texture: bool = False, texture_size: int
     check_mesh_resolution(resolution)
 
 
-def note_few_faces(faces: int | None, mesh: trimesh.Trimesh) -> None:
-    """A one-line warning when the asked face count is above the mesh's own (the mesh is kept as it is)."""
-    if faces and faces > len(mesh.faces):
-        warnings.warn(f"--faces {faces}: the mesh has only {len(mesh.faces)} faces, so it is textured with "
-                      "those (simplification removes faces, it adds none)", stacklevel=3)
+FACES_MAX_RESOLUTION = 384
+"""Finest marching-cubes grid that :func:`mesh_for_faces` extracts to reach a ``faces`` count."""
+FACES_MARGIN = 1.15
+"""How far past the asked face count the finer grid aims (a surface's faces grow as the grid squared)."""
+
+
+def mesh_for_faces(model, mesh: trimesh.Trimesh, faces: int | None, resolution: int,
+                   largest_component: bool) -> tuple[trimesh.Trimesh, int]:
+    """The mesh to decimate to ``faces`` and its grid: ``mesh`` itself when it has at least that many faces;
+    otherwise the field extracted again on a grid fine enough to have them (faces grow as the grid
+    squared; at most :data:`FACES_MAX_RESOLUTION`, and only where it fits in memory). A mesh still short
+    of ``faces`` is kept with a one-line warning."""
+    source, grid = mesh, resolution
+    if faces and len(mesh.faces) < faces:
+        finer = min(FACES_MAX_RESOLUTION, math.ceil(resolution * math.sqrt(faces / max(len(mesh.faces), 1))
+                                                    * FACES_MARGIN))
+        try:
+            check_mesh_resolution(finer)
+        except ConfigError:
+            finer = resolution
+        if finer > resolution:
+            fine = extract_mesh(model, resolution=finer, largest_component=largest_component, with_color=False)
+            if len(fine.faces) > len(mesh.faces):
+                source, grid = fine, finer
+    if faces and len(source.faces) < faces:
+        warnings.warn(f"--faces {faces}: the mesh has only {len(source.faces)} faces (on a {grid}^3 grid), so it "
+                      "is textured with those (simplification removes faces, it adds none)", stacklevel=3)
+    return source, grid
 
 
 def _locks_run(function: Callable[..., Any]) -> Callable[..., Any]:
@@ -416,10 +443,12 @@ def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution
         if frame_applies(files.path):
             files.frame = frame_record(frame, frame_transform(mesh.vertices, frame))
     if texture:
-        note_few_faces(faces, mesh)
+        source, grid = mesh_for_faces(loaded.pipeline.model, mesh, faces, resolution, largest_component)
         files.textured, files.report, files.textured_paths = texture_run_mesh(
-            loaded.pipeline, mesh, outs, texture_size, fusion, use_inconsistency, progress=progress,
-            harmonise_views=harmonise, max_faces=MAX_TEXTURE_FACES if faces is None else faces, frame=frame)
+            loaded.pipeline, source, outs, texture_size, fusion, use_inconsistency, progress=progress,
+            harmonise_views=harmonise, max_faces=MAX_TEXTURE_FACES if faces is None else faces, frame=frame,
+            record={"mesh_resolution": grid})
+        files.textured_source = (grid, len(source.faces))
         files.frame = frame_record(frame, frame_transform(files.textured.vertices, frame))
     return files
 

@@ -130,10 +130,27 @@ def test_default_export_writes_glb_and_obj_upright_and_ply_as_trained(run, tmp_p
         assert loaded.volume > 0  # outward normals
 
 
-def test_more_faces_than_the_mesh_has_keeps_it_with_a_note(run, tmp_path, capsys):
-    code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "16", "--resolution", "24",
+def test_more_faces_than_the_grid_gives_come_from_a_finer_grid(run, tmp_path, capsys):
+    code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "16", "--resolution", "16",
+                            "--output", str(tmp_path / "coarse.glb"), "--device", "cpu", "--quiet"])
+    coarse = json.loads((tmp_path / "coarse_bake.json").read_text())["faces_extracted"]
+    want = 2 * coarse
+    code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "16", "--resolution", "16",
+                            "--faces", str(want), "--output", str(tmp_path / "m.glb"), "--device", "cpu", "--quiet"])
+    printed = capsys.readouterr()
+    assert code == 0 and printed.err == "", printed.err
+    record = json.loads((tmp_path / "m_bake.json").read_text())
+    assert record["mesh_resolution"] > 16 and record["faces_extracted"] > want
+    assert abs(record["faces_textured"] - want) <= 0.01 * want and "grid" in printed.out
+
+
+def test_more_faces_than_the_finest_grid_gives_keeps_the_mesh_with_a_note(run, tmp_path, capsys, monkeypatch):
+    from va_plugin import api
+
+    monkeypatch.setattr(api, "FACES_MAX_RESOLUTION", 20)  # the finest grid, small for the test
+    code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "16", "--resolution", "16",
                             "--faces", "1000000", "--output", str(tmp_path / "m.glb"), "--device", "cpu", "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()
     assert code == 0 and len(err) == 1 and "--faces 1000000: the mesh has only" in err[0], err
     record = json.loads((tmp_path / "m_bake.json").read_text())
-    assert record["faces_textured"] == record["faces_extracted"] < 1000000
+    assert record["faces_textured"] == record["faces_extracted"] < 1000000 and record["mesh_resolution"] == 20

@@ -95,7 +95,10 @@ def export_mesh_command(args: argparse.Namespace) -> int:
         return 0
     textured, report = files.textured, files.report
     seen = report.seen / max(report.covered, 1)
-    simplified = f" (simplified from {len(mesh.faces)})" if len(textured.faces) < len(mesh.faces) else ""
+    grid, source_faces = files.textured_source
+    simplified = f" (simplified from {source_faces})" if len(textured.faces) < source_faces else ""
+    if grid != args.resolution:
+        simplified += f" (from a {grid}^3 grid: --faces asked for more than the {args.resolution}^3 mesh has)"
     print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces{simplified} "
           f"and a {args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view){frame} written to "
           + ", ".join(str(p) for p in files.textured_paths))

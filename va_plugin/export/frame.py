@@ -64,9 +64,11 @@ def apply_transform(vertices: np.ndarray, transform: np.ndarray) -> np.ndarray:
 def frame_record(frame: str, transform: np.ndarray) -> dict[str, object]:
     """What a file's frame is, as JSON: the frame, its up axis, and the 4 x 4 matrices between it and the
     training frame (row-major, acting on column vectors ``[x, y, z, 1]``)."""
+    inverse = np.eye(4)
+    inverse[:3, :3] = transform[:3, :3].T  # a rotation's inverse is its transpose
+    inverse[:3, 3] = -transform[:3, :3].T @ transform[:3, 3]
     return {"frame": frame, "up": "+y" if frame == "upright" else "+z",
-            "training_to_file": np.round(transform, 9).tolist(),
-            "file_to_training": np.round(np.linalg.inv(transform), 9).tolist()}
+            "training_to_file": (transform + 0.0).tolist(), "file_to_training": (inverse + 0.0).tolist()}
 
 
 def frame_record_path(mesh_path: Path) -> Path:

@@ -185,12 +185,12 @@ def field_fallback(model) -> Fallback:
 def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Path], size: int = 1024,
                      fusion: str = "robust", inconsistency: bool = False, progress: bool = True,
                      harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES,
-                     frame: str = "upright"):
+                     frame: str = "upright", record: dict | None = None):
     """Bake ``mesh`` from a loaded run's training views (field color where none sees), write it to
     ``output`` (GLB or OBJ+MTL+PNG; several paths: one bake written in each format) in ``frame`` with
     ``<stem>_frame.json``, and ``<stem>_bake.png`` (atlas | per-view weight maps) and ``<stem>_bake.json``
-    beside the first; returns ``(TexturedMesh, BakeReport, written paths)``. The TexturedMesh stays in the
-    training frame."""
+    beside the first (with ``record`` added to the JSON); returns ``(TexturedMesh, BakeReport, written
+    paths)``. The TexturedMesh stays in the training frame."""
     outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
     for path in outputs:
         check_texture_output(path)
@@ -206,5 +206,5 @@ def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Pa
     written.append(write_bake_record(report, first.with_name(first.stem + "_bake.json"),
                                      {"texture_size": size, "fusion": fusion, "inconsistency_maps": inconsistency,
                                       "faces_extracted": len(mesh.faces), "faces_textured": len(textured.faces),
-                                      "max_faces": max_faces or 0, "frame": frame}))
+                                      "max_faces": max_faces or 0, "frame": frame, **(record or {})}))
     return textured, report, written
