@@ -302,7 +302,8 @@ class MeshFiles:
     textured: Any = None
     """The textured mesh (:class:`~va_plugin.export.texture.TexturedMesh`), None without a texture."""
     textured_paths: list[Path] = field(default_factory=list)
-    """The textured mesh's files: the mesh, then its texture atlas and bake record."""
+    """The textured mesh's files: the mesh files (GLB, OBJ with its MTL and PNG, ``<stem>_frame.json``), then
+    its texture atlas picture and bake record."""
     report: Any = None
     """The bake's statistics (:class:`~va_plugin.export.texture.BakeReport`), None without a texture."""
     textured_source: tuple[int, int] = (0, 0)
@@ -418,7 +419,8 @@ def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution
     UV-unwrapped, baked from the input views and written to ``output`` (default both ``RUN/mesh.glb`` and
     ``RUN/mesh.obj`` with its ``.mtl`` and ``.png``; one path or several). ``faces``: the textured mesh's
     face count, by quadric decimation before the unwrap (default at most 40000; 0 keeps every face; a
-    mesh with fewer faces is kept as it is, with a warning); ``max_faces`` is its old name. ``frame``:
+    mesh with fewer faces is first extracted again on a finer grid, see :func:`mesh_for_faces`);
+    ``max_faces`` is its old name. ``frame``:
     ``upright`` (GLB and OBJ +Y up, standing on y = 0, centred on the vertical axis) or ``training``
     (as trained, +Z up); PLY always stays in the training frame. ``fusion``: ``robust`` or ``mean`` per
     texel; ``harmonise=False`` skips levelling the views' color gains. Relative file names are inside the
