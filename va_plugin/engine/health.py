@@ -254,11 +254,16 @@ class TrainingGuard:
                          f"{self.inv_s_peak:.4g} (the surface thinned out: check the mesh)")
         return "; ".join(parts) if parts else None
 
-    def state_dict(self) -> dict[str, Any]:
-        return {"levels": dict(self.levels), "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
-                "restores": self.restores, "skips_in_a_row": self.skips_in_a_row, "inv_s_start": self.inv_s_start,
-                "inv_s_below_start": self.inv_s_below_start, "inv_s_peak": self.inv_s_peak,
-                "inv_s_now": self.inv_s_now, "warned": sorted(self._warned)}
+    def state_dict(self, with_snapshot: bool = False) -> dict[str, Any]:
+        """The guard's state; ``with_snapshot``: with the last good state too (a checkpoint's copy, so a
+        resumed run rolls back to where the uninterrupted one would)."""
+        state = {"levels": dict(self.levels), "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
+                 "restores": self.restores, "skips_in_a_row": self.skips_in_a_row, "inv_s_start": self.inv_s_start,
+                 "inv_s_below_start": self.inv_s_below_start, "inv_s_peak": self.inv_s_peak,
+                 "inv_s_now": self.inv_s_now, "warned": sorted(self._warned)}
+        if with_snapshot:
+            state["snapshot"] = self._snapshot
+        return state
 
     def load_state_dict(self, state: dict[str, Any]) -> None:
         self.levels = dict(state.get("levels", {}))
@@ -271,7 +276,7 @@ class TrainingGuard:
         self.inv_s_peak = state.get("inv_s_peak", self.inv_s_start)
         self.inv_s_now = state.get("inv_s_now", self.inv_s_start)
         self._warned = set(state.get("warned", []))
-        self._snapshot = None
+        self._snapshot = state.get("snapshot")  # None in a checkpoint of an earlier version: taken afresh
 
 
 @torch.no_grad()
