@@ -102,6 +102,10 @@ def _hand_on(signum: int, frame, handler) -> None:
         os.kill(os.getpid(), signum)
 
 
+SIGNAL_POINTS = ("start", "mid", "end")
+"""Where in a step :func:`signal_plan`'s signals are sent."""
+
+
 def signal_plan(text: str | None) -> dict[tuple[int, str], int]:
     """The test hook's plan (``VA_TEST_SIGNALS``): ``"12:INT,20:TERM@start"`` -> ``{(12, "mid"): SIGINT,
     (20, "start"): SIGTERM}``, signals a training run sends itself during the given 1-based step, at its
@@ -113,12 +117,8 @@ def signal_plan(text: str | None) -> dict[tuple[int, str], int]:
             continue
         step, _, rest = item.partition(":")
         name, _, where = rest.partition("@")
-        signum = getattr(signal, "SIG" + name.upper().removeprefix("SIG"), None)
-        if not step.isdigit() or not isinstance(signum, int) or where not in ("", *SIGNAL_POINTS):
+        signum = signal.Signals.__members__.get("SIG" + name.upper().removeprefix("SIG"))
+        if not step.isdigit() or signum is None or where not in ("", *SIGNAL_POINTS):
             raise ValueError(f"VA_TEST_SIGNALS item {item!r} is not STEP:SIGNAL[@start|mid|end]")
-        plan[(int(step), where or "mid")] = signum
+        plan[(int(step), where or "mid")] = int(signum)
     return plan
-
-
-SIGNAL_POINTS = ("start", "mid", "end")
-"""Where in a step :func:`signal_plan`'s signals are sent."""
