@@ -76,10 +76,12 @@ def test_api_train_takes_a_stop_event(tiny_scene, tmp_path, full_neus):
     assert _losses(tmp_path / "run") == _losses(full_neus[0])
 
 
-def test_a_roll_back_after_a_resume_goes_where_the_uninterrupted_run_went(tiny_scene, tmp_path):
+@pytest.mark.parametrize("every, last_good", [(8, 4), (5, 5)])
+def test_a_roll_back_after_a_resume_goes_where_the_uninterrupted_run_went(every, last_good, tiny_scene, tmp_path):
     """The guard's last good state is in the checkpoint: a blow-up in step 6, after a stop at step 5,
-    restores the state of step 4 (the last snapshot) in the resumed run too."""
-    options = {"steps": 8, "checkpoint_every": 8, "health.snapshot_every": 2}
+    restores in the resumed run too the state of step 4 (the last snapshot), or of step 5 when a scheduled
+    checkpoint was written there (it is the last good state, and the checkpoint holds no second copy)."""
+    options = {"steps": 8, "checkpoint_every": every, "health.snapshot_every": 2}
 
     def with_blow_up(trainer):
         def spike(outputs, batch, step):
@@ -89,7 +91,7 @@ def test_a_roll_back_after_a_resume_goes_where_the_uninterrupted_run_went(tiny_s
         return trainer
 
     full = with_blow_up(tiny_config("neus", tiny_scene, tmp_path / "full", **options).setup())
-    with pytest.warns(UserWarning, match="restored the state after step 4"):
+    with pytest.warns(UserWarning, match=f"restored the state after step {last_good}"):
         full.train()
     assert full.guard.restores == 1
     first = with_blow_up(tiny_config("neus", tiny_scene, tmp_path / "cut", **options).setup())
@@ -97,9 +99,11 @@ def test_a_roll_back_after_a_resume_goes_where_the_uninterrupted_run_went(tiny_s
         first.train(stop=lambda: first.step == 5)
     second = with_blow_up(tiny_config("neus", tiny_scene, tmp_path / "cut", **options).setup())
     assert second.resume() and second.step == 5
-    with pytest.warns(UserWarning, match="restored the state after step 4"):
+    with pytest.warns(UserWarning, match=f"restored the state after step {last_good}"):
         second.train()
     assert _same(_params(second), _params(full))
+    stored = torch.load(list_checkpoints(tmp_path / "cut")[0], weights_only=False)["health"]["snapshot"]
+    assert isinstance(stored, str) == (every == 5)
 
 
 def _failing_save(monkeypatch, code: int, at_step: int, times: int = 99):

@@ -347,7 +347,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "lr_multipliers": dict(self.lr_multipliers),
-            "health": self.guard.state_dict(with_snapshot=True),
+            "health": self.guard.state_dict(step=self.step),
             "datamanager": self.pipeline.datamanager.state_dict(),
             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),
                     "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None},
@@ -412,7 +412,7 @@ class Trainer:
         self.model.restore_step(max(self.step - 1, 0))
         self.train_seconds = float(state.get("train_seconds", 0.0))
         self.lr_multipliers.update(state.get("lr_multipliers", {}))
-        self.guard.load_state_dict(state.get("health", {}))
+        self.guard.load_state_dict(state.get("health", {}), self.step, self.model, self.optimizer)
         self.pipeline.datamanager.load_state_dict(state["datamanager"])
         rng = state["rng"]
         torch.set_rng_state(rng["torch"])
@@ -592,6 +592,7 @@ class Trainer:
                 if metrics:
                     self.log({"step": self.step, **metrics})
             if self.step % cfg.checkpoint_every == 0 or self.step == cfg.max_steps:
+                self.guard.checkpointed(self.step, self.model, self.optimizer)
                 self.save_checkpoint()
         self._stop_if_asked(poll)  # asked during the last step: the command stops all the same
         return record
