@@ -33,6 +33,12 @@ POINTS = ("mid", "start", "end")
 EXTRA = {"va-neus": ["--set", "pipeline.model.field.skip_consistent_scenes=false"]}
 
 
+def _python_sigint() -> None:
+    """In each child before it starts: SIGINT at its default, so that Python installs its Ctrl-C handler
+    even when this script runs in the background (which leaves SIGINT ignored in its children)."""
+    signal.signal(signal.SIGINT, signal.SIG_DFL)
+
+
 def command(method: str, run: Path, args, resume: bool) -> list[str]:
     data = ["--data", str(args.data)] if args.data else ["--default-scene-resolution", "64"]
     return [sys.executable, "-m", "va_plugin.cli.train", method, *data, "--preset", "fast", "--steps",
@@ -54,10 +60,11 @@ def interrupted(method: str, run: Path, args, k: int, signum: int, point: str) -
     env = dict(os.environ)
     if args.mode == "hook":
         env["VA_TEST_SIGNALS"] = f"{k}:{signal.Signals(signum).name}@{point}"
-        done = subprocess.run(command(method, run, args, False), env=env, capture_output=True, text=True)
+        done = subprocess.run(command(method, run, args, False), env=env, capture_output=True, text=True,
+                              preexec_fn=_python_sigint)
         return done.returncode, (done.stderr.strip().splitlines() or [""])[-1]
     process = subprocess.Popen(command(method, run, args, False), env=env, stdout=subprocess.DEVNULL,
-                               stderr=subprocess.PIPE, text=True)
+                               stderr=subprocess.PIPE, text=True, preexec_fn=_python_sigint)
     log = run / "metrics.jsonl"
     while process.poll() is None:
         steps = [json.loads(line).get("step", 0) for line in log.read_text().splitlines()[-3:]

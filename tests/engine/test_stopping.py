@@ -191,3 +191,14 @@ def test_a_bad_signal_plan_is_refused(monkeypatch, tiny_scene, tmp_path):
     monkeypatch.setenv(trainer_module.SIGNALS_ENV, "three:INT")
     with pytest.raises(ConfigError, match="STEP:SIGNAL"):
         tiny_config("neus", tiny_scene, tmp_path / "run", steps=1).setup()
+
+
+@pytest.mark.parametrize("method", ["neus", "ngp"])
+def test_the_periodic_evaluation_draws_no_random_number(method, tiny_scene, tmp_path):
+    """It runs between steps, before the checkpoint: were it to draw, a run resumed there would differ."""
+    trainer = tiny_config(method, tiny_scene, tmp_path / "run", steps=1).setup()
+    trainer.train()
+    before = (torch.get_rng_state(), trainer.pipeline.datamanager.generator.get_state())
+    metrics, _ = trainer.pipeline.evaluate_views(1)
+    assert metrics and torch.equal(before[0], torch.get_rng_state())
+    assert torch.equal(before[1], trainer.pipeline.datamanager.generator.get_state())
