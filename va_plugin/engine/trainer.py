@@ -591,11 +591,21 @@ class Trainer:
                 metrics, _ = self.pipeline.evaluate_views(cfg.eval_views)
                 if metrics:
                     self.log({"step": self.step, **metrics})
-            if self.step % cfg.checkpoint_every == 0 or self.step == cfg.max_steps:
-                self.guard.checkpointed(self.step, self.model, self.optimizer)
-                self.save_checkpoint()
+            if self._scheduled_checkpoint():
+                self._save_between_steps()
         self._stop_if_asked(poll)  # asked during the last step: the command stops all the same
         return record
+
+    def _scheduled_checkpoint(self) -> bool:
+        """Whether a checkpoint is due after the steps done (none before the first step)."""
+        return self.step > 0 and (self.step % self.config.checkpoint_every == 0 or self.step == self.config.max_steps)
+
+    def _save_between_steps(self) -> Path:
+        """A checkpoint of the steps done, as the uninterrupted run has it here: at a scheduled one, the
+        state becomes the guard's last good state first (see ``TrainingGuard.checkpointed``)."""
+        if self._scheduled_checkpoint():
+            self.guard.checkpointed(self.step, self.model, self.optimizer)
+        return self.save_checkpoint()
 
     def _on_signal(self, signum: int) -> None:
         """SIGINT or SIGTERM during training (the handler of :func:`signals_as_requests`): stop at the
@@ -614,7 +624,7 @@ class Trainer:
             return
         path = self.run_dir / CHECKPOINT_DIR / f"step-{self.step:07d}.ckpt"
         if self._saved_step != self.step or not path.is_file():
-            path = self.save_checkpoint()
+            path = self._save_between_steps()
         self._stop_requested.clear()
         raise TrainingInterrupted(self.step, path, saved=True, cause=cause)
 
@@ -624,7 +634,7 @@ class Trainer:
         nothing is written (a step cut short cannot be continued exactly) and the newest checkpoint is
         the one to resume from."""
         if not self._mid_step and self._signalled is None:
-            return TrainingInterrupted(self.step, self.save_checkpoint(), saved=True, cause="KeyboardInterrupt")
+            return TrainingInterrupted(self.step, self._save_between_steps(), saved=True, cause="KeyboardInterrupt")
         try:
             newest = list_checkpoints(self.run_dir)
         except OSError:
