@@ -11,7 +11,8 @@ step k of ``--at`` a run interrupted in step k (SIGINT and SIGTERM alternately) 
 itself the signal at a chosen point of step k (the ``VA_TEST_SIGNALS`` hook: after the backward pass,
 before the callbacks, after them, by turns); ``--mode watch`` sends it from outside once the metrics log
 shows step k (where it lands in the next step is chance; this works on code without the hook too).
-``va-neus`` runs with its adaptive phases forced (they switch at N/3 and 2N/3). Without ``--data``, the
+``va-neus`` runs with its adaptive phases forced (they switch at N/3 and 2N/3), ``ngp``'s mesh is the
+level set of density 0.5 (a short run reaches no more than about 1). Without ``--data``, the
 embedded default scene at 64 px. Prints a Markdown table; writes ``OUT/resume_exact.json``.
 """
 
@@ -30,7 +31,9 @@ from pathlib import Path
 
 SIGNALS = (signal.SIGINT, signal.SIGTERM)
 POINTS = ("mid", "start", "end")
-EXTRA = {"va-neus": ["--set", "pipeline.model.field.skip_consistent_scenes=false"]}
+EXTRA = {"va-neus": ["--set", "pipeline.model.field.skip_consistent_scenes=false"],
+         "ngp": ["--set", "pipeline.model.density_threshold=0.5"]}
+"""Per method: the adaptive phases forced; ngp's mesh at a density its short run reaches (mesh only)."""
 
 
 def _python_sigint() -> None:
