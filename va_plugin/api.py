@@ -24,6 +24,7 @@ import copy
 import functools
 import json
 import math
+import threading
 import time
 import warnings
 from collections.abc import Callable, Iterable, Mapping
@@ -93,6 +94,8 @@ GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"), "elevation": ("eleva
                      "rig": ("rig", "zero123pp"), "masks": ("masks", "syncdreamer, zero123pp and wonder3d")}
 Progress = Callable[[int, int, dict[str, float]], None]
 """``progress(step, total, losses)``: called after every training step."""
+Stop = threading.Event | Callable[[], bool] | None
+"""``stop``: training stops at the next step boundary once the Event is set or the callable returns True."""
 
 
 def _override_text(key: str, value: Any) -> str:
@@ -206,7 +209,8 @@ def check_training_memory(config: TrainerConfig) -> None:
 
 
 def _train(config: TrainerConfig, progress: Progress | None, on_message: Callable[[str], None] | None,
-           before_training: Callable[[Any], None] | None = None, header: str | None = None) -> int | None:
+           before_training: Callable[[Any], None] | None = None, header: str | None = None,
+           stop: Stop = None) -> int | None:
     """:func:`train`'s work in a claimed run folder; the step the run resumed from (None for a fresh run).
     ``header``: a line said once the data has loaded (bad input stays one line: the error alone)."""
     run_dir = Path(config.output_dir)
@@ -217,7 +221,7 @@ def _train(config: TrainerConfig, progress: Progress | None, on_message: Callabl
             say(line)
     if before_training is not None:
         before_training(trainer)
-    done = train_run(config, resume=True, trainer=trainer, on_step=progress,
+    done = train_run(config, resume=True, trainer=trainer, on_step=progress, stop=stop,
                      on_resume=lambda step: say(f"resuming {config.method_name} from step {step}"))
     health = done.trainer.guard.summary()
     if health:
@@ -230,7 +234,8 @@ def _quiet(line: str) -> None:
 
 
 def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = False,
-          progress: Progress | None = None, on_message: Callable[[str], None] | None = None) -> Path:
+          progress: Progress | None = None, on_message: Callable[[str], None] | None = None,
+          stop: Stop = None) -> Path:
     """Train ``config`` into its run folder (``config.output_dir``) and return that folder.
 
     The folder must be new, empty, or a run of its own (see :mod:`va_plugin.engine.run_folder`);
@@ -238,11 +243,13 @@ def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = Fals
     folder's newest checkpoint, when the method, preset, data and options are the run's own; without it, a
     folder that holds checkpoints is refused. ``progress(step, total, losses)`` is called after each step.
     ``on_message(line)`` gets the lines a user should see (the inputs found, a resume). A run whose health
-    guard intervened ends with a warning. Ctrl-C saves a checkpoint and raises :class:`TrainingInterrupted`."""
+    guard intervened ends with a warning. Ctrl-C, SIGTERM or ``stop`` (a ``threading.Event`` set, or a
+    callable returning True, polled between steps) end the step in progress, save a checkpoint and raise
+    :class:`TrainingInterrupted`; ``resume=True`` then continues exactly where it stopped."""
     check_training_memory(config)
     with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
                           flag="--output-dir"):
-        _train(config, progress, on_message)
+        _train(config, progress, on_message, stop=stop)
     return Path(config.output_dir)
 
 
@@ -582,7 +589,8 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
                 faces: int | None = None, frame: str = "upright",
                 evaluate_options: Mapping[str, Any] | None = None,
                 show_progress: bool = False, on_message: Callable[[str], None] | None = None,
-                overrides: Mapping[str, Any] | Iterable[str] | None = None, **more_overrides: Any) -> Reconstruction:
+                overrides: Mapping[str, Any] | Iterable[str] | None = None, stop: Stop = None,
+                **more_overrides: Any) -> Reconstruction:
     """A generator output (or scene folder) to a textured mesh, in one call: what ``va-recon`` does.
 
     Trains ``method`` (``quality``: ``fast``, ``default`` or ``accurate``; ``preset`` names any preset of
@@ -596,8 +604,8 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     stderr; ``on_message(line)``: the stage lines. ``overrides`` are config overrides as in
     :func:`build_config`, and so is any other keyword (``pipeline__model__eikonal_weight=0.05``).
     The run folder must be new, empty or a run of its own (``overwrite``: any folder; see :func:`train`).
-    Interrupted (Ctrl-C), it saves a checkpoint and raises :class:`TrainingInterrupted`; call again with
-    ``resume=True`` to continue."""
+    Interrupted (Ctrl-C, SIGTERM, or ``stop`` as in :func:`train`), it saves a checkpoint and raises
+    :class:`TrainingInterrupted`; call again with ``resume=True`` to continue."""
     started = time.perf_counter()
     source = Path(input).expanduser()
     if quality not in QUALITIES:
@@ -632,7 +640,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
 
         resumed_from = _train(config, progress, say, before_training=check_bake,
                               header=f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} "
-                                     f"-> {run_dir}")
+                                     f"-> {run_dir}", stop=stop)
         loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
         say(f"extracting the mesh ({mesh_resolution}^3 grid)")
         if texture:

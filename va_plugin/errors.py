@@ -24,3 +24,7 @@ class CheckpointError(VAError):
 def one_line_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Warnings on the command line as ``warning: <message>``, without the source line."""
     print(f"warning: {message}", file=sys.stderr if file is None else file)
+
+
+class OutputError(VAError):
+    """A file of a run that could not be written (a full disk, a read-only folder); what was kept is said."""

@@ -129,3 +129,40 @@ def _alive(pid: int) -> bool:
     except OSError:
         return False
     return state != "Z"
+
+
+def test_inside_signals_as_requests_the_first_signal_is_a_request_and_the_second_interrupts():
+    from va_plugin.utils.interrupts import signals_as_requests
+
+    asked = []
+    with pytest.raises(KeyboardInterrupt), signals_as_requests(asked.append):
+        os.kill(os.getpid(), signal.SIGTERM)
+        _swallowing_code()  # the handler runs here; nothing is raised
+        assert asked == [signal.SIGTERM]
+        os.kill(os.getpid(), signal.SIGINT)  # the second: Python's Ctrl-C, at once
+        time.sleep(5)
+    assert asked == [signal.SIGTERM]
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL
+
+
+def test_signals_as_requests_leaves_an_ignored_signal_ignored():
+    from va_plugin.utils.interrupts import signals_as_requests
+
+    signal.signal(signal.SIGINT, signal.SIG_IGN)
+    asked = []
+    with signals_as_requests(asked.append):
+        os.kill(os.getpid(), signal.SIGINT)
+        _swallowing_code()
+    assert asked == [] and signal.getsignal(signal.SIGINT) is signal.SIG_IGN
+
+
+def test_the_signal_plan_of_the_test_hook():
+    from va_plugin.utils.interrupts import signal_plan
+
+    assert signal_plan("12:INT, 20:sigterm@start,3:KILL@end") == {
+        (12, "mid"): signal.SIGINT, (20, "start"): signal.SIGTERM, (3, "end"): signal.SIGKILL}
+    assert signal_plan(None) == {} and signal_plan("") == {}
+    for bad in ("x:INT", "3:NOPE", "3:INT@later", "3"):
+        with pytest.raises(ValueError, match="STEP:SIGNAL"):
+            signal_plan(bad)

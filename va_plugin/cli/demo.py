@@ -75,8 +75,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         run = train(config, resume=True, overwrite=args.overwrite, on_message=None if args.quiet else print)
     except TrainingInterrupted as interrupt:
-        print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; run va-demo again to continue",
-              file=sys.stderr)
+        print(f"{interrupt}; run va-demo again to continue", file=sys.stderr)
         return EXIT_INTERRUPTED
     loaded = load_run(run, args.device)
     files = export_mesh(loaded, texture=False, resolution=128)

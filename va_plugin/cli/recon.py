@@ -106,8 +106,7 @@ def main(argv: list[str] | None = None) -> int:
                              show_progress=not args.quiet, on_message=None if args.quiet else say,
                              overrides=list(args.overrides))
     except TrainingInterrupted as interrupt:
-        print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with the same "
-              "command and --resume", file=sys.stderr)
+        print(f"{interrupt}; continue with the same command and --resume", file=sys.stderr)
         return EXIT_INTERRUPTED
     print("\n".join(summary_lines(result.record, args.out)))
     return 0

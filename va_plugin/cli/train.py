@@ -129,8 +129,7 @@ def main(argv: list[str] | None = None) -> int:
     try:
         train(config, resume=args.resume, overwrite=args.overwrite, on_message=None if args.quiet else say)
     except TrainingInterrupted as interrupt:
-        print(f"interrupted at step {interrupt.step}; saved {interrupt.checkpoint}; continue with --resume",
-              file=sys.stderr)
+        print(f"{interrupt}; continue with --resume", file=sys.stderr)
         return EXIT_INTERRUPTED
     print(f"{training_summary(config.method_name, run_dir)}; run folder {run_dir}")
     if args.export_mesh:

@@ -30,6 +30,8 @@ from va_plugin.rays import RayBundle
 from va_plugin.utils.stages import timed
 
 OK, SKIP, RESTORE = "ok", "skip", "restore"
+SNAPSHOT_IS_CHECKPOINT = "the checkpoint's own state"
+"""A checkpoint's ``health.snapshot`` when the last good state is the state the checkpoint holds."""
 
 
 class TrainingDiverged(VAError):
@@ -196,6 +198,12 @@ class TrainingGuard:
                               "parameters": {k: v.detach().clone() for k, v in model.named_parameters()},
                               "optimizer": copy.deepcopy(optimizer.state_dict())}
 
+    def checkpointed(self, step: int, model: torch.nn.Module, optimizer: torch.optim.Optimizer) -> None:
+        """A scheduled checkpoint of the state after ``step`` steps is being written: unless inv_s has
+        fallen, that state becomes the last good one, and the checkpoint needs no second copy of it."""
+        if not self._fallen():
+            self.maybe_snapshot(step, model, optimizer, force=True)
+
     def _fallen(self) -> bool:
         """inv_s now below ``snapshot_inv_s_fraction`` of its peak."""
         return (self.inv_s_now is not None and self.inv_s_peak is not None
@@ -254,13 +262,24 @@ class TrainingGuard:
                          f"{self.inv_s_peak:.4g} (the surface thinned out: check the mesh)")
         return "; ".join(parts) if parts else None
 
-    def state_dict(self) -> dict[str, Any]:
-        return {"levels": dict(self.levels), "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
-                "restores": self.restores, "skips_in_a_row": self.skips_in_a_row, "inv_s_start": self.inv_s_start,
-                "inv_s_below_start": self.inv_s_below_start, "inv_s_peak": self.inv_s_peak,
-                "inv_s_now": self.inv_s_now, "warned": sorted(self._warned)}
+    def state_dict(self, step: int | None = None) -> dict[str, Any]:
+        """The guard's state. With ``step`` (a checkpoint's), the last good state too, so a resumed run
+        rolls back to where the uninterrupted one would: :data:`SNAPSHOT_IS_CHECKPOINT` when it is the
+        state after ``step`` (see :meth:`checkpointed`), else a copy."""
+        state = {"levels": dict(self.levels), "lr_scale": self.lr_scale, "bad_steps": self.bad_steps,
+                 "restores": self.restores, "skips_in_a_row": self.skips_in_a_row, "inv_s_start": self.inv_s_start,
+                 "inv_s_below_start": self.inv_s_below_start, "inv_s_peak": self.inv_s_peak,
+                 "inv_s_now": self.inv_s_now, "warned": sorted(self._warned)}
+        if step is not None:
+            snapshot = self._snapshot
+            state["snapshot"] = SNAPSHOT_IS_CHECKPOINT if snapshot is not None and snapshot["step"] == step \
+                else snapshot
+        return state
 
-    def load_state_dict(self, state: dict[str, Any]) -> None:
+    def load_state_dict(self, state: dict[str, Any], step: int = 0, model: torch.nn.Module | None = None,
+                        optimizer: torch.optim.Optimizer | None = None) -> None:
+        """Load :meth:`state_dict`; ``step``, ``model`` and ``optimizer``: the checkpoint's step and the
+        model and optimizer already loaded from it (the last good state, when it is theirs)."""
         self.levels = dict(state.get("levels", {}))
         self.lr_scale = float(state.get("lr_scale", 1.0))
         self.bad_steps = int(state.get("bad_steps", 0))
@@ -271,7 +290,10 @@ class TrainingGuard:
         self.inv_s_peak = state.get("inv_s_peak", self.inv_s_start)
         self.inv_s_now = state.get("inv_s_now", self.inv_s_start)
         self._warned = set(state.get("warned", []))
-        self._snapshot = None
+        snapshot = state.get("snapshot")  # None in a checkpoint of an earlier version: taken afresh
+        self._snapshot = None if isinstance(snapshot, str) else snapshot
+        if isinstance(snapshot, str) and snapshot == SNAPSHOT_IS_CHECKPOINT and model is not None:
+            self.maybe_snapshot(step, model, optimizer, force=True)
 
 
 @torch.no_grad()

@@ -9,6 +9,8 @@ import json
 from pathlib import Path
 from typing import Any
 
+from va_plugin.utils.files import write_atomic
+
 METRICS_FILE = "metrics.jsonl"
 
 
@@ -43,8 +45,5 @@ def training_records(run_dir: Path) -> list[dict[str, Any]]:
 
 
 def write_records(run_dir: Path, records: list[dict[str, Any]]) -> None:
-    """Replace the run's log with ``records`` (a temporary file, then a rename)."""
-    path = Path(run_dir) / METRICS_FILE
-    tmp = path.with_name(path.name + ".tmp")
-    tmp.write_text("".join(json.dumps(record) + "\n" for record in records), encoding="utf-8")
-    tmp.replace(path)
+    """Replace the run's log with ``records`` (a temporary file, then a rename; none left on failure)."""
+    write_atomic(Path(run_dir) / METRICS_FILE, "".join(json.dumps(record) + "\n" for record in records))

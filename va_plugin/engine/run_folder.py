@@ -277,7 +277,8 @@ def folder_lock(path: Path) -> Iterator[None]:
         yield
     finally:
         del _held[path]
-        lock.unlink(missing_ok=True)
+        with contextlib.suppress(OSError):  # a folder gone read-only: the next run takes the stale lock over
+            lock.unlink(missing_ok=True)
 
 
 # -- a run's folder, claimed --------------------------------------------------------------------------------

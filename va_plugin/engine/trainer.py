@@ -6,6 +6,8 @@ import json
 import os
 import pickle
 import random
+import signal
+import threading
 import time
 import warnings
 from collections.abc import Callable
@@ -22,15 +24,21 @@ from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
 from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check_usable
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
-from va_plugin.errors import CheckpointError, ConfigError
+from va_plugin.errors import CheckpointError, ConfigError, OutputError, VAError
 from va_plugin.pipelines.base import PipelineConfig
 from va_plugin.utils.device import pick_device
+from va_plugin.utils.files import DISK_FULL, NOT_WRITABLE, output_error, replace_atomic, write_atomic
+from va_plugin.utils.interrupts import signal_plan, signals_as_requests
 from va_plugin.utils.memory import keep_freed_memory
 from va_plugin.utils.progress import progress_bar
 from va_plugin.utils.stages import stage, timed
 
 CHECKPOINT_DIR = "checkpoints"
 CHECKPOINT_GLOB = "step-*.ckpt"
+UNREADABLE_SUFFIX = ".unreadable"
+"""Added to the name of a checkpoint a resume skipped as unreadable (kept, but no longer a checkpoint)."""
+SIGNALS_ENV = "VA_TEST_SIGNALS"
+"""Test hook: signals a run sends itself at chosen steps (see :func:`va_plugin.utils.interrupts.signal_plan`)."""
 
 
 @dataclass
@@ -97,15 +105,38 @@ def seed_everything(seed: int) -> None:
     torch.manual_seed(seed)
 
 
+class _WriteRecorder:
+    """A file handle that keeps the OSError of a failed write, which ``torch.save`` turns into a bare
+    RuntimeError."""
+
+    def __init__(self, handle) -> None:
+        self.handle, self.error = handle, None
+
+    def write(self, data) -> int:
+        try:
+            return self.handle.write(data)
+        except OSError as exc:
+            self.error = exc
+            raise
+
+    def flush(self) -> None:
+        self.handle.flush()
+
+
+def _torch_save(obj: Any, handle) -> None:
+    recorder = _WriteRecorder(handle)
+    try:
+        torch.save(obj, recorder)
+    except RuntimeError:
+        if recorder.error is not None:  # the disk's error, not torch's wrapper of it
+            raise recorder.error from None
+        raise
+
+
 def atomic_save(obj: Any, path: Path) -> None:
-    """Write to a temporary file in the same folder, then rename: never a half-written file in place."""
-    path.parent.mkdir(parents=True, exist_ok=True)
-    tmp = path.with_name(path.name + ".tmp")
-    with open(tmp, "wb") as handle:
-        torch.save(obj, handle)
-        handle.flush()
-        os.fsync(handle.fileno())
-    os.replace(tmp, path)
+    """Write to a temporary file in the same folder, then rename: never a half-written file in place, and
+    no temporary file left when the write fails (a full disk raises its OSError)."""
+    replace_atomic(Path(path), lambda handle: _torch_save(obj, handle))
 
 
 def list_checkpoints(run_dir: Path) -> list[Path]:
@@ -173,29 +204,72 @@ class _TolerantPickle:
     __name__ = "pickle"
 
 
-def load_checkpoint(run_dir: Path, map_location: Any = "cpu") -> dict[str, Any]:
-    """The newest readable checkpoint of a run; falls back to older ones when the newest is corrupt."""
+def checkpoint_step(path: Path) -> int | None:
+    """The step in a checkpoint's name (``step-0000012.ckpt`` -> 12), None for another name."""
+    digits = Path(path).name.removeprefix("step-").removesuffix(".ckpt")
+    return int(digits) if digits.isdigit() else None
+
+
+def load_checkpoint(run_dir: Path, map_location: Any = "cpu", set_aside: bool = False) -> dict[str, Any]:
+    """The newest readable checkpoint of a run; falls back to older ones when the newest is corrupt (with
+    a warning). ``set_aside``: rename the unreadable ones skipped to ``NAME.unreadable`` (a resumed run
+    writes those steps again, and must not count them as checkpoints when it prunes old ones)."""
     run_dir = Path(run_dir)
     if not run_dir.is_dir():
         raise CheckpointError(f"run folder not found: {run_dir}")
     candidates = list_checkpoints(run_dir)
     if not candidates:
         raise CheckpointError(f"{run_dir} holds no checkpoint (expected {CHECKPOINT_DIR}/{CHECKPOINT_GLOB})")
-    problems = []
+    problems, skipped = [], []
     for path in reversed(candidates):
         try:
             state = torch.load(path, map_location=map_location, weights_only=False, pickle_module=_TolerantPickle)
             if not isinstance(state, dict) or "model" not in state or "step" not in state:
                 raise ValueError("not a va-plugin checkpoint")
-            if problems:
-                warnings.warn(f"skipped unreadable checkpoint(s): {'; '.join(problems)}", stacklevel=2)
-            state["path"] = str(path)
-            return state
         except Exception as exc:  # a corrupt file can raise nearly anything while unpickling
             detail = str(exc).strip().splitlines()[0][:80] if str(exc).strip() else ""
             problems.append(f"{path.name} ({type(exc).__name__}{': ' + detail if detail else ''})")
+            skipped.append(path)
+            continue
+        if problems:
+            aside = ""
+            if set_aside and _set_aside(skipped):
+                aside = f" (renamed to *{UNREADABLE_SUFFIX})"
+            warnings.warn(f"skipped unreadable checkpoint(s): {'; '.join(problems)}{aside}; using {path.name}",
+                          stacklevel=2)
+        state["path"] = str(path)
+        return state
     raise CheckpointError(f"no readable checkpoint in {run_dir} (corrupt, truncated, or not written by va-train): "
                           f"{'; '.join(problems)}")
+
+
+def _set_aside(paths: list[Path]) -> bool:
+    """Rename ``paths`` to ``NAME.unreadable``; False when one could not be renamed."""
+    done = True
+    for path in paths:
+        try:
+            path.replace(path.with_name(path.name + UNREADABLE_SUFFIX))
+        except OSError:
+            done = False
+    return done
+
+
+class TrainingInterrupted(KeyboardInterrupt):
+    """Training stopped by Ctrl-C, SIGTERM or a stop request (:meth:`Trainer.request_stop`, ``stop``).
+
+    ``saved``: the stop came at the end of step ``step``, where ``checkpoint`` was written: the run
+    continues exactly from there. Not ``saved``: a second signal (or an interrupt raised inside a step)
+    left step ``step + 1`` unfinished, and nothing was written; ``checkpoint`` is the newest one on disk
+    (None: none yet), which the run continues from. ``cause``: the signal's name, or "request"."""
+
+    def __init__(self, step: int, checkpoint: Path | None, saved: bool = True, cause: str = "") -> None:
+        if saved:
+            text = f"interrupted at step {step}; saved {checkpoint}"
+        else:
+            older = f"the newest checkpoint is {checkpoint}" if checkpoint is not None else "no checkpoint yet"
+            text = f"interrupted during step {step + 1}, which was left unfinished ({older})"
+        super().__init__(text)
+        self.step, self.checkpoint, self.saved, self.cause = step, checkpoint, saved, cause
 
 
 class Trainer:
@@ -224,6 +298,19 @@ class Trainer:
         self.train_seconds = 0.0
         self.guard = TrainingGuard(config.health, inv_s_start=self.model.diagnostics().get("inv_s"),
                                    grace_steps=config.scheduler.warmup_steps)
+        self._stop_requested = threading.Event()
+        self._signalled: int | None = None  # the signal (SIGINT, SIGTERM) the loop is asked to stop for
+        self._mid_step = False  # True while a step runs: its state is not whole
+        self._saved_step: int | None = None  # the step of the last checkpoint written or loaded
+        try:
+            self._signal_plan = signal_plan(os.environ.get(SIGNALS_ENV))
+        except ValueError as exc:
+            raise ConfigError(str(exc)) from None
+
+    def request_stop(self) -> None:
+        """Ask the training loop (from any thread) to stop at the end of the step it is in: it writes a
+        checkpoint and raises :class:`TrainingInterrupted`, as Ctrl-C does."""
+        self._stop_requested.set()
 
     @property
     def bad_steps(self) -> int:
@@ -260,7 +347,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "lr_multipliers": dict(self.lr_multipliers),
-            "health": self.guard.state_dict(),
+            "health": self.guard.state_dict(step=self.step),
             "datamanager": self.pipeline.datamanager.state_dict(),
             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),
                     "cuda": torch.cuda.get_rng_state_all() if torch.cuda.is_available() else None},
@@ -269,13 +356,44 @@ class Trainer:
         }
 
     def save_checkpoint(self) -> Path:
+        """Write ``checkpoints/step-N.ckpt`` and drop those beyond ``keep_checkpoints``. On a full disk the
+        old ones that go anyway make room for one more try; a write that fails raises
+        :class:`~va_plugin.errors.OutputError`, and the earlier checkpoints stay as they were."""
         path = self.run_dir / CHECKPOINT_DIR / f"step-{self.step:07d}.ckpt"
-        atomic_save(self.state_dict(), path)
-        for old in list_checkpoints(self.run_dir)[:-max(1, self.config.keep_checkpoints)]:
-            old.unlink(missing_ok=True)
+        keep = max(1, self.config.keep_checkpoints)
+        state = self.state_dict()
+        try:
+            try:
+                atomic_save(state, path)
+            except OSError as exc:
+                if exc.errno not in DISK_FULL or not self._drop_old_checkpoints(max(1, keep - 1), but=path):
+                    raise
+                atomic_save(state, path)
+        except OSError as exc:
+            raise self._write_error(exc, path) from None
+        self._saved_step = self.step
+        self._drop_old_checkpoints(keep)
         for stale in path.parent.glob(CHECKPOINT_GLOB + ".tmp"):  # left by a run killed mid-write
             stale.unlink(missing_ok=True)
         return path
+
+    def _drop_old_checkpoints(self, keep: int, but: Path | None = None) -> bool:
+        """Delete all but the ``keep`` newest checkpoints (never ``but``); whether one was deleted."""
+        old = [p for p in list_checkpoints(self.run_dir) if p != but][:-keep]
+        for path in old:
+            path.unlink(missing_ok=True)
+        return bool(old)
+
+    def _write_error(self, exc: OSError, path: Path | None = None) -> OutputError:
+        """The one-line error of a failed write during training: what failed, and what is kept."""
+        try:
+            kept = list_checkpoints(self.run_dir)
+        except OSError:
+            kept = []
+        newest = (f"the newest checkpoint, {kept[-1]} (step {checkpoint_step(kept[-1])}), is kept" if kept
+                  else "no checkpoint was written yet")
+        return output_error(exc, path, f", then continue with --resume; training stopped at step {self.step}, "
+                                       f"{newest}")
 
     def load_state(self, state: dict[str, Any]) -> None:
         if state.get("method_name") != self.config.method_name:
@@ -294,7 +412,7 @@ class Trainer:
         self.model.restore_step(max(self.step - 1, 0))
         self.train_seconds = float(state.get("train_seconds", 0.0))
         self.lr_multipliers.update(state.get("lr_multipliers", {}))
-        self.guard.load_state_dict(state.get("health", {}))
+        self.guard.load_state_dict(state.get("health", {}), self.step, self.model, self.optimizer)
         self.pipeline.datamanager.load_state_dict(state["datamanager"])
         rng = state["rng"]
         torch.set_rng_state(rng["torch"])
@@ -304,11 +422,16 @@ class Trainer:
             torch.cuda.set_rng_state_all(rng["cuda"])
 
     def resume(self) -> bool:
-        """Continue from the newest checkpoint of the run folder; False when there is none."""
+        """Continue from the newest readable checkpoint of the run folder (unreadable newer ones are set
+        aside, with a warning); False when there is none."""
         if not list_checkpoints(self.run_dir):
             return False
-        self.load_state(load_checkpoint(self.run_dir, map_location=self.device))
-        self._truncate_log()
+        self.load_state(load_checkpoint(self.run_dir, map_location=self.device, set_aside=True))
+        self._saved_step = self.step
+        try:
+            self._truncate_log()
+        except OSError as exc:
+            raise self._write_error(exc) from None
         return True
 
     def _truncate_log(self) -> None:
@@ -338,9 +461,7 @@ class Trainer:
         self.log({"step": step, "event": message, **fields})
 
     def _write_config(self) -> None:
-        self.run_dir.mkdir(parents=True, exist_ok=True)
-        with open(self.run_dir / "config.json", "w", encoding="utf-8") as handle:
-            json.dump(to_dict(self.config), handle, indent=2)
+        write_atomic(self.run_dir / "config.json", json.dumps(to_dict(self.config), indent=2))
 
     # -- the loop -------------------------------------------------------------------------------
     @timed("callbacks")
@@ -350,6 +471,13 @@ class Trainer:
                 factors = callback(self.step, self.callback_attributes)
                 if factors:
                     self.lr_multipliers.update(factors)
+
+    def _send_planned_signal(self, where: str) -> None:
+        """The test hook (:data:`SIGNALS_ENV`): the signal planned for this point of this step, sent to
+        this process."""
+        signum = self._signal_plan.get((self.step + 1, where))
+        if signum is not None:
+            os.kill(os.getpid(), signum)
 
     def _step(self) -> dict[str, float]:
         self._set_learning_rates(self.step)
@@ -363,6 +491,8 @@ class Trainer:
             guard.maybe_snapshot(self.step, self.model, self.optimizer)  # these parameters gave a sane loss
             with stage("backward"):
                 loss.backward()
+            if self._signal_plan:
+                self._send_planned_signal("mid")
             verdict = guard.check_gradients(params)
         if verdict == OK:
             with stage("optimizer"):
@@ -387,33 +517,71 @@ class Trainer:
         """One training step with its callbacks (no logging, evaluation or checkpoint): its record and
         its wall seconds, which are added to ``train_seconds``."""
         start = time.perf_counter()
+        if self._signal_plan:
+            self._send_planned_signal("start")
         self._run_callbacks(BEFORE_STEP)
         record = self._step()
         self._run_callbacks(AFTER_STEP)
+        if self._signal_plan:
+            self._send_planned_signal("end")
         elapsed = time.perf_counter() - start
         self.train_seconds += elapsed
         self.step += 1
         return record, elapsed
 
-    def train(self, on_step: Callable[[int, int, dict[str, float]], None] | None = None) -> dict[str, Any]:
+    def train(self, on_step: Callable[[int, int, dict[str, float]], None] | None = None,
+              stop: threading.Event | Callable[[], bool] | None = None) -> dict[str, Any]:
         """Train to ``max_steps`` (from the current step); returns the final log record. ``on_step(step,
-        max_steps, losses)`` is called after every step."""
+        max_steps, losses)`` is called after every step.
+
+        Stopping: SIGINT (Ctrl-C) or SIGTERM, :meth:`request_stop`, or ``stop`` (an Event set, or a callable
+        returning True; polled between steps) let the step in progress finish, then write a checkpoint and
+        raise :class:`TrainingInterrupted`; the run resumed from it trains on exactly as it would have. A
+        second signal aborts the step at once (nothing written: the run resumes from the newest
+        checkpoint). A write that fails (full disk, read-only folder) raises
+        :class:`~va_plugin.errors.OutputError`; the checkpoints written before stay."""
         cfg = self.config
-        self._write_config()
-        if self.step == 0:
-            self.pipeline.datamanager.save_mask_picture(self.run_dir)
-        bar = progress_bar(total=cfg.max_steps, initial=self.step, disable=not cfg.progress, dynamic_ncols=True,
-                   desc=cfg.method_name, leave=True)
+        poll = stop.is_set if isinstance(stop, threading.Event) else stop
+        bar = None
+        try:
+            self._write_config()
+            if self.step == 0:
+                self.pipeline.datamanager.save_mask_picture(self.run_dir)
+            bar = progress_bar(total=cfg.max_steps, initial=self.step, disable=not cfg.progress,
+                               dynamic_ncols=True, desc=cfg.method_name, leave=True)
+            with signals_as_requests(self._on_signal):
+                return self._train_steps(bar, on_step, poll)
+        except TrainingInterrupted:
+            raise
+        except KeyboardInterrupt:
+            raise self._aborted() from None
+        except VAError:
+            raise
+        except OSError as exc:
+            if exc.errno not in DISK_FULL | NOT_WRITABLE:
+                raise
+            raise self._write_error(exc) from None
+        finally:
+            self._mid_step = False
+            self._signalled = None
+            if bar is not None:
+                bar.close()
+
+    def _train_steps(self, bar, on_step, poll: Callable[[], bool] | None) -> dict[str, Any]:
+        cfg = self.config
         record: dict[str, Any] = {}
         recent: list[float] = []
         while self.step < cfg.max_steps:
+            self._stop_if_asked(poll)
+            self._mid_step = True
             record, elapsed = self.run_step()
             recent = (recent + [elapsed])[-20:]
-            bar.update(1)
             record.update(self.model.diagnostics())
             record.update({"step": self.step, "train_seconds": round(self.train_seconds, 3),
                            "it_per_s": round(len(recent) / max(sum(recent), 1e-9), 3)})
             self.guard.observe(record)
+            self._mid_step = False
+            bar.update(1)
             if self.step % cfg.log_every == 0 or self.step == cfg.max_steps:
                 self.log(record)
             bar.set_postfix({k: f"{record[k]:.4g}" for k in ("loss", "psnr", "inv_s") if k in record})
@@ -423,18 +591,56 @@ class Trainer:
                 metrics, _ = self.pipeline.evaluate_views(cfg.eval_views)
                 if metrics:
                     self.log({"step": self.step, **metrics})
-            if self.step % cfg.checkpoint_every == 0 or self.step == cfg.max_steps:
-                self.save_checkpoint()
-        bar.close()
+            if self._scheduled_checkpoint():
+                self._save_between_steps()
+        self._stop_if_asked(poll)  # asked during the last step: the command stops all the same
         return record
 
+    def _scheduled_checkpoint(self) -> bool:
+        """Whether a checkpoint is due after the steps done (none before the first step)."""
+        return self.step > 0 and (self.step % self.config.checkpoint_every == 0 or self.step == self.config.max_steps)
 
-class TrainingInterrupted(KeyboardInterrupt):
-    """Ctrl-C during :func:`train_run`, after the run wrote a checkpoint (``checkpoint``) to resume from."""
+    def _save_between_steps(self) -> Path:
+        """A checkpoint of the steps done, as the uninterrupted run has it here: at a scheduled one, the
+        state becomes the guard's last good state first (see ``TrainingGuard.checkpointed``)."""
+        if self._scheduled_checkpoint():
+            self.guard.checkpointed(self.step, self.model, self.optimizer)
+        return self.save_checkpoint()
 
-    def __init__(self, step: int, checkpoint: Path) -> None:
-        super().__init__(f"interrupted at step {step}; saved {checkpoint}")
-        self.step, self.checkpoint = step, checkpoint
+    def _on_signal(self, signum: int) -> None:
+        """SIGINT or SIGTERM during training (the handler of :func:`signals_as_requests`): stop at the
+        step's end. Only a flag is set (the main thread may be anywhere, even in ``request_stop``)."""
+        self._signalled = signum
+
+    def _stop_if_asked(self, poll: Callable[[], bool] | None) -> None:
+        """Between steps: when a signal, :meth:`request_stop` or ``poll()`` asks, write a checkpoint (unless
+        this step's is written) and raise :class:`TrainingInterrupted`."""
+        signalled = self._signalled
+        if signalled is not None:
+            cause = signal.Signals(signalled).name
+        elif self._stop_requested.is_set() or (poll is not None and poll()):
+            cause = "request"
+        else:
+            return
+        path = self.run_dir / CHECKPOINT_DIR / f"step-{self.step:07d}.ckpt"
+        if self._saved_step != self.step or not path.is_file():
+            path = self._save_between_steps()
+        self._stop_requested.clear()
+        raise TrainingInterrupted(self.step, path, saved=True, cause=cause)
+
+    def _aborted(self) -> TrainingInterrupted:
+        """A KeyboardInterrupt raised in the loop: a second signal, or one raised by code (a callback, an
+        ``on_step``). Between steps, when no signal came first, the state is whole and is saved; else
+        nothing is written (a step cut short cannot be continued exactly) and the newest checkpoint is
+        the one to resume from."""
+        if not self._mid_step and self._signalled is None:
+            return TrainingInterrupted(self.step, self._save_between_steps(), saved=True, cause="KeyboardInterrupt")
+        try:
+            newest = list_checkpoints(self.run_dir)
+        except OSError:
+            newest = []
+        cause = signal.Signals(self._signalled).name if self._signalled is not None else "KeyboardInterrupt"
+        return TrainingInterrupted(self.step, newest[-1] if newest else None, saved=False, cause=cause)
 
 
 @dataclass
@@ -449,20 +655,19 @@ class TrainedRun:
 
 def train_run(config: TrainerConfig, resume: bool = True, trainer: Trainer | None = None,
               on_resume: Callable[[int], None] | None = None,
-              on_step: Callable[[int, int, dict[str, float]], None] | None = None) -> TrainedRun:
+              on_step: Callable[[int, int, dict[str, float]], None] | None = None,
+              stop: threading.Event | Callable[[], bool] | None = None) -> TrainedRun:
     """Train a run folder to its budget: the one way every command and benchmark trains a run.
 
     With ``resume``, continue from the newest checkpoint in ``config.output_dir`` (calling
-    ``on_resume(step)`` first). Ctrl-C writes a checkpoint and raises :class:`TrainingInterrupted`; a
-    model that renders nothing on the foreground raises :class:`~va_plugin.engine.health.UnusableModel`.
-    ``trainer``: one already set up from ``config``; ``on_step``: see :meth:`Trainer.train`."""
+    ``on_resume(step)`` first). Ctrl-C, SIGTERM or ``stop`` (see :meth:`Trainer.train`) end the step in
+    progress, write a checkpoint and raise :class:`TrainingInterrupted`; a model that renders nothing on
+    the foreground raises :class:`~va_plugin.engine.health.UnusableModel`. ``trainer``: one already set up
+    from ``config``; ``on_step``: see :meth:`Trainer.train`."""
     trainer = config.setup() if trainer is None else trainer
     resumed_from = trainer.step if resume and trainer.resume() else None
     if resumed_from is not None and on_resume is not None:
         on_resume(resumed_from)
-    try:
-        record = trainer.train(on_step)
-    except KeyboardInterrupt:
-        raise TrainingInterrupted(trainer.step, trainer.save_checkpoint()) from None
+    record = trainer.train(on_step, stop=stop)
     check_usable(trainer.pipeline, config.health, trainer.step)
     return TrainedRun(trainer, record, resumed_from)

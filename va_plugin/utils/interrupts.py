@@ -1,17 +1,21 @@
-"""Holding back Ctrl-C while code that swallows it runs, and SIGTERM taken like Ctrl-C.
+"""Holding back Ctrl-C while code that swallows it runs, SIGTERM taken like Ctrl-C, and both turned into
+a request that training serves at the end of a step.
 
 Some imports (trimesh, open3d) catch a KeyboardInterrupt and carry on broken; inside
 :func:`interrupt_deferred` a SIGINT only sets a flag, raised when the block ends. Inside
 :func:`terminate_as_interrupt` SIGTERM (``kill``, batch time limits) raises KeyboardInterrupt, so it
-takes Ctrl-C's way out (a checkpoint is saved, workers are interrupted and waited for).
+takes Ctrl-C's way out (a checkpoint is saved, workers are interrupted and waited for). Inside
+:func:`signals_as_requests` (the training loop) the first SIGINT or SIGTERM only asks the loop to stop
+when the step ends; :func:`signal_plan` reads the test hook that sends them at chosen steps.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import signal
 import threading
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 
 
 @contextlib.contextmanager
@@ -53,3 +57,68 @@ def terminate_as_interrupt() -> Iterator[None]:
         yield
     finally:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
+
+
+@contextlib.contextmanager
+def signals_as_requests(request: Callable[[int], None]) -> Iterator[None]:
+    """Run the block with SIGINT and SIGTERM calling ``request(signum)`` instead of interrupting it, so the
+    caller can stop where its state is whole (a training step's end). A second one of them gets the
+    handling they had before the block: Ctrl-C's KeyboardInterrupt at once, SIGTERM's end of the process
+    (or the handler set, e.g. :func:`terminate_as_interrupt`'s).
+
+    A signal ignored (SIG_IGN, as in background jobs) stays ignored; SIGINT without Python's handlers
+    (SIG_DFL) is left alone. Does nothing off the main thread (signal handlers can only be set there)."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    taken = [signum for signum, handler in previous.items()
+             if callable(handler) or (signum == signal.SIGTERM and handler is signal.SIG_DFL)]
+    received: list[int] = []
+
+    def handler(signum, frame) -> None:
+        if received:  # the second one: no more waiting for the block
+            _hand_on(signum, frame, previous[signum])
+            return
+        received.append(signum)
+        request(signum)
+
+    for signum in taken:
+        signal.signal(signum, handler)
+    try:
+        yield
+    finally:
+        for signum in taken:
+            if signal.getsignal(signum) is handler:  # not when the handler handed on changed it meanwhile
+                signal.signal(signum, previous[signum])
+
+
+def _hand_on(signum: int, frame, handler) -> None:
+    """Handle ``signum`` as ``handler`` (a previous disposition) would have."""
+    if callable(handler):
+        handler(signum, frame)
+    elif handler is signal.SIG_DFL:
+        signal.signal(signum, signal.SIG_DFL)
+        os.kill(os.getpid(), signum)
+
+
+SIGNAL_POINTS = ("start", "mid", "end")
+"""Where in a step :func:`signal_plan`'s signals are sent."""
+
+
+def signal_plan(text: str | None) -> dict[tuple[int, str], int]:
+    """The test hook's plan (``VA_TEST_SIGNALS``): ``"12:INT,20:TERM@start"`` -> ``{(12, "mid"): SIGINT,
+    (20, "start"): SIGTERM}``, signals a training run sends itself during the given 1-based step, at its
+    ``start`` (before the callbacks), ``mid`` (after the backward pass, the default) or ``end`` (after the
+    callbacks). Empty or None: no plan."""
+    plan: dict[tuple[int, str], int] = {}
+    for item in (text or "").replace(" ", "").split(","):
+        if not item:
+            continue
+        step, _, rest = item.partition(":")
+        name, _, where = rest.partition("@")
+        signum = signal.Signals.__members__.get("SIG" + name.upper().removeprefix("SIG"))
+        if not step.isdigit() or signum is None or where not in ("", *SIGNAL_POINTS):
+            raise ValueError(f"VA_TEST_SIGNALS item {item!r} is not STEP:SIGNAL[@start|mid|end]")
+        plan[(int(step), where or "mid")] = int(signum)
+    return plan
