@@ -286,7 +286,7 @@ class App:
                 with gr.Column(scale=1):
                     status = gr.Markdown(elem_id="status")
                     preview = gr.Image(label=f"Preview: {PREVIEW_LABEL}",
-                                       type="filepath", interactive=False, elem_id="preview")
+                                       type="filepath", interactive=False, height=220, elem_id="preview")
                     mesh = gr.Model3D(label="Textured mesh (drag to turn, scroll to zoom)", clear_color=(1, 1, 1, 1),
                                       height=420, elem_id="mesh")
                     video = gr.Video(label="Turntable", autoplay=True, loop=True, interactive=False,
