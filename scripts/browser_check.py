@@ -40,7 +40,7 @@ REPO = Path(__file__).resolve().parents[1]
 CHROMIUM_FLAGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-quic", "--no-first-run",
                   "--disable-background-networking", "--disable-component-update", "--disable-sync",
                   "--disable-dev-shm-usage", "--use-angle=swiftshader", "--enable-unsafe-swiftshader",
-                  "--remote-debugging-pipe", "--hide-scrollbars"]
+                  "--remote-debugging-pipe", "--hide-scrollbars", "--disable-crash-reporter", "--disable-breakpad"]
 """Headless, offline, software WebGL (the 3D viewer needs it without a GPU)."""
 TEST_SIZES = ["--steps", "60", "--texture-size", "128", "--mesh-resolution", "48", "--turntable-frames", "8",
               "--preview-every", "20", "--threads", "1", "--set", "pipeline.datamanager.rays_per_batch=256"]
@@ -234,7 +234,9 @@ def check(args, work: Path) -> dict:
         browser.attach()
         browser.wait_for("the page", "!!document.querySelector('#upload input[type=file]')", 120)
         if args.quality != "default":
-            browser.evaluate(f"document.querySelector('input[type=radio][value={args.quality!r}]').click()")
+            chosen = f'document.querySelector(\'input[type=radio][value="{args.quality}"]\')'
+            browser.evaluate(f"{chosen}.click()")
+            browser.wait_for(f"the {args.quality} quality to be chosen", f"{chosen}.checked", 10)
         uploaded = time.perf_counter()
         browser.upload("#upload input[type=file]", upload)
         info = browser.wait_for("the detected format", "(() => { const t = document.getElementById('info')"
@@ -257,6 +259,8 @@ def check(args, work: Path) -> dict:
             raise TimeoutError(f"no result in {args.timeout} s; the status: {browser.text('status')}")
         if "Done in" not in status:
             raise RuntimeError(f"the run did not finish: {status}")
+        if f"{args.quality} quality" not in status:
+            raise RuntimeError(f"the run did not train at {args.quality} quality: {status.splitlines()[0]}")
         done = time.perf_counter()
         say(f"done ({len(steps_seen)} training steps shown); waiting for the viewer to draw the mesh")
         browser.wait_for("the 3D viewer", "!!document.querySelector('#mesh canvas')", 60)

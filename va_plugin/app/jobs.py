@@ -275,15 +275,25 @@ def run_job(spec: JobSpec, send: Send) -> None:
 
 
 def child_main(inbox, outbox) -> None:
-    """A job process: wait for one spec (None: nothing to do), run it, exit. SIGINT is Python's own
-    here (a server started in the background would pass on an ignored one), SIGTERM taken like it."""
+    """A job process: wait for one spec (None: nothing to do), run it, exit; exit too when the server
+    is gone. The child is a process group of its own, so that a Ctrl-C in the server's terminal does not
+    reach it: the server sends its one SIGINT (a second one would cut the checkpoint's writing). SIGINT
+    is Python's own here (a server started in the background would pass on an ignored one), SIGTERM
+    taken like it."""
+    os.setpgrp()
     signal.signal(signal.SIGINT, signal.default_int_handler)
-    try:
-        record = inbox.get()
-    except KeyboardInterrupt:  # the terminal's Ctrl-C reaches an idle child too
-        return
-    if record is None:
-        return
+    server = os.getppid()
+    record = None
+    while record is None:
+        try:
+            record = inbox.get(timeout=1.0)
+            if record is None:
+                return
+        except queue.Empty:
+            if os.getppid() != server:
+                return
+        except KeyboardInterrupt:
+            return
     with terminate_as_interrupt():
         try:
             run_job(JobSpec.from_dict(record), outbox.put)

@@ -41,6 +41,9 @@ def _duration(seconds: float) -> str:
     return f"{minutes} min {seconds:02d} s" if minutes < 60 else f"{minutes // 60} h {minutes % 60:02d} min"
 
 
+NO_UPLOAD = "Upload a file to begin."
+
+
 def _problem(text: str) -> str:
     return f"**Cannot use this upload.** {text}"
 
@@ -89,10 +92,12 @@ class App:
         self.launcher = Launcher(warm=settings.warm_worker)
         self.lock = threading.Lock()
         self.running: dict[str, Any] = {}
+        self.staged: dict[str, Upload] = {}
         self.waiting: set[str] = set()
         self.cancel_waiting: set[str] = set()
 
     def close(self) -> None:
+        """Stop the running jobs (each saves its checkpoint), let the waiting child go, drop the uploads."""
         with self.lock:
             jobs = list(self.running.values())
         for job in jobs:
@@ -101,41 +106,55 @@ class App:
         shutil.rmtree(self.staging, ignore_errors=True)
 
     # -- uploads ----------------------------------------------------------------------------------
-    def _inspect(self, upload: Upload, quality: str, views: str, state: dict) -> tuple[str, list, dict]:
-        inspection, used = inspect_upload(upload, self.settings.method, quality, parse_views(views))
-        state = {**state, "upload": {"name": upload.name, "path": str(upload.path), "staging": str(upload.staging)},
-                 "views": used, "format": inspection.format}
-        text = "**Detected** " + inspection.summary().replace("\n", "\n\n")
-        return text, inspection.gallery, state
+    def _drop_upload(self, session: str) -> None:
+        with self.lock:
+            upload = self.staged.pop(session, None)
+        if upload is not None:
+            upload.discard()
 
-    def inspect(self, file: str | None, quality: str, views: str, state: dict | None) -> tuple[str, list, dict]:
+    def _inspect(self, upload: Upload, quality: str, views: str, state: dict) -> tuple[str, list, dict]:
+        try:
+            inspection, used = inspect_upload(upload, self.settings.method, quality, parse_views(views))
+        except VAError as exc:
+            return _problem(str(exc)), [], {**state, "format": None}
+        text = "**Detected** " + inspection.summary().replace("\n", "\n\n")
+        return text, inspection.gallery, {**state, "format": inspection.format, "views": used}
+
+    def inspect(self, file: str | None, quality: str, views: str, state: dict | None,
+                request: gr.Request) -> tuple[str, list, dict]:
         """An upload taken in and read: what it holds, or one line on what is wrong with it."""
-        state = dict(state or {})
-        old = state.pop("upload", None)
-        if old:
-            Upload(**{k: (Path(v) if k != "name" else v) for k, v in old.items()}).discard()
+        state = {**(state or {}), "format": None}
+        self._drop_upload(request.session_hash)
         if file is None:
-            return "Upload a file to begin.", [], state
-        upload = None
+            return NO_UPLOAD, [], state
         try:
             upload = stage_upload(file, self.staging, self.settings.max_upload_bytes)
-            return self._inspect(upload, quality, views, state)
         except VAError as exc:
-            if upload is not None:
-                upload.discard()
             return _problem(str(exc)), [], state
+        with self.lock:
+            self.staged[request.session_hash] = upload
+        return self._inspect(upload, quality, views, state)
 
-    def reinspect(self, quality: str, views: str, state: dict | None) -> tuple[str, list, dict]:
+    def reinspect(self, quality: str, views: str, state: dict | None, request: gr.Request) -> tuple[str, list, dict]:
         """The staged upload read again with another quality or view count."""
         state = dict(state or {})
-        if not state.get("upload"):
-            return "Upload a file to begin.", [], state
-        saved = state["upload"]
-        upload = Upload(saved["name"], Path(saved["path"]), Path(saved["staging"]))
-        try:
-            return self._inspect(upload, quality, views, state)
-        except VAError as exc:
-            return _problem(str(exc)), [], state
+        upload = self.staged.get(request.session_hash)
+        if upload is None:
+            return NO_UPLOAD, [], state
+        return self._inspect(upload, quality, views, state)
+
+    def forget(self, state: dict | None, request: gr.Request) -> tuple[str, list, dict]:
+        """The upload box was cleared: the staged upload goes."""
+        self._drop_upload(request.session_hash)
+        return NO_UPLOAD, [], {**(state or {}), "format": None}
+
+    def leave(self, request: gr.Request) -> None:
+        """The page was closed: its run stops with a checkpoint (resumable), its upload goes."""
+        with self.lock:
+            job = self.running.get(request.session_hash)
+        if job is not None:
+            job.cancel()
+        self._drop_upload(request.session_hash)
 
     # -- jobs -------------------------------------------------------------------------------------
     def ask(self, request: gr.Request) -> None:
@@ -165,12 +184,12 @@ class App:
         if not self._begin(request.session_hash):
             yield self._empty(state, "Cancelled before it started.")
             return
-        saved = state.get("upload")
-        if not saved:
+        upload = self.staged.get(request.session_hash)
+        if upload is None or not state.get("format"):
             self._end(request.session_hash)
-            yield self._empty(state, "Upload a file first.")
+            yield self._empty(state, "Upload a file first." if upload is None else
+                              "This upload cannot be used (see above); upload another.")
             return
-        upload = Upload(saved["name"], Path(saved["path"]), Path(saved["staging"]))
         try:
             if quality not in QUALITIES:
                 raise VAError(f"quality {quality!r} is not one of {', '.join(QUALITIES)}")
@@ -221,8 +240,9 @@ class App:
         preview = None
         status.add("starting (the run continues from its checkpoint)" if spec.resume else "starting")
         yield status.text(), preview, None, None, None, state
+        messages = job.messages()
         try:
-            for message in job.messages():
+            for message in messages:
                 kind = message["kind"]
                 if kind == "message":
                     status.add(message["line"])
@@ -241,6 +261,9 @@ class App:
                     state["stopped"] = spec.run_dir if list_checkpoints(Path(spec.run_dir)) else None
                     status.ending = f"**Failed.** {message['message']}"
                 yield status.text(), preview, None, None, None, state
+        except GeneratorExit:  # Gradio let go of the event: the run stops with a checkpoint, not orphaned
+            threading.Thread(target=lambda: (job.stop(), messages.close()), daemon=True).start()
+            raise
         finally:
             self._end(session)
 
@@ -280,7 +303,7 @@ class App:
                         cancel = gr.Button("Cancel", variant="stop", elem_id="cancel")
                         resume = gr.Button("Resume", elem_id="resume")
                     cancel_note = gr.Markdown(elem_id="cancel-note")
-                    info = gr.Markdown("Upload a file to begin.", elem_id="info")
+                    info = gr.Markdown(NO_UPLOAD, elem_id="info")
                     gallery = gr.Gallery(label="Training views (top) and their masks (bottom)", columns=8,
                                          height=320, object_fit="contain", elem_id="views")
                 with gr.Column(scale=1):
@@ -296,15 +319,18 @@ class App:
             run_outputs = [status, preview, mesh, video, files, state]
             upload.upload(self.inspect, [upload, quality, views, state], [info, gallery, state], api_name="inspect",
                           concurrency_limit=None)
+            upload.clear(self.forget, [state], [info, gallery, state], api_name=False, concurrency_limit=None)
             for choice in (quality, views):
                 choice.input(self.reinspect, [quality, views, state], [info, gallery, state],
                              api_name="reinspect" if choice is quality else False, concurrency_limit=None)
             start.click(self.ask, None, None, api_name=False, queue=False).then(
                 self.run, [quality, views, state], run_outputs, api_name="run", concurrency_limit=1,
-                concurrency_id="train")
+                concurrency_id="train", show_progress="minimal", show_progress_on=[status])
             resume.click(self.ask, None, None, api_name=False, queue=False).then(
-                self.resume, [state], run_outputs, api_name="resume", concurrency_limit=1, concurrency_id="train")
+                self.resume, [state], run_outputs, api_name="resume", concurrency_limit=1, concurrency_id="train",
+                show_progress="minimal", show_progress_on=[status])
             cancel.click(self.cancel, None, cancel_note, api_name="cancel", concurrency_limit=None)
+            page.unload(self.leave)
         return page
 
 
