@@ -304,18 +304,19 @@ class App:
                         resume = gr.Button("Resume", elem_id="resume")
                     cancel_note = gr.Markdown(elem_id="cancel-note")
                     info = gr.Markdown(NO_UPLOAD, elem_id="info")
-                    gallery = gr.Gallery(label="Training views (top) and their masks (bottom)", columns=8,
-                                         height=320, object_fit="contain", elem_id="views")
                 with gr.Column(scale=1):
                     status = gr.Markdown(elem_id="status")
                     preview = gr.Image(label=f"Preview: {PREVIEW_LABEL}",
                                        type="filepath", interactive=False, height=220, elem_id="preview")
-                    mesh = gr.Model3D(label="Textured mesh (drag to turn, scroll to zoom)", clear_color=(1, 1, 1, 1),
-                                      height=420, elem_id="mesh")
-                    video = gr.Video(label="Turntable", autoplay=True, loop=True, interactive=False,
-                                     elem_id="turntable")
-                    files = gr.File(label="Downloads: GLB (textured), PLY (vertex colours), OBJ (zip)",
-                                    file_count="multiple", interactive=False, elem_id="downloads")
+            gallery = gr.Gallery(label="Training views (top) and their masks (bottom)", columns=8, height="auto",
+                                 object_fit="contain", elem_id="views")
+            with gr.Row():
+                mesh = gr.Model3D(label="Textured mesh (drag to turn, scroll to zoom)", clear_color=(1, 1, 1, 1),
+                                  height=480, elem_id="mesh")
+                video = gr.Video(label="Turntable", autoplay=True, loop=True, interactive=False, height=480,
+                                 elem_id="turntable")
+            files = gr.File(label="Downloads: GLB (textured), PLY (vertex colours), OBJ (zip)",
+                            file_count="multiple", interactive=False, elem_id="downloads")
             run_outputs = [status, preview, mesh, video, files, state]
             upload.upload(self.inspect, [upload, quality, views, state], [info, gallery, state], api_name="inspect",
                           concurrency_limit=None)
