@@ -46,7 +46,7 @@ def run_app(source: Path, quality: str, out: Path) -> dict:
     report = json.loads(text[text.index("{"):text.rindex("}") + 1])
     if result.returncode != 0 or not report.get("passed"):
         raise RuntimeError(f"the browser check failed: {report}\n{result.stderr[-2000:]}")
-    run_dir = next(p for p in runs.iterdir() if p.is_dir())
+    run_dir = next(p for p in runs.iterdir() if p.is_dir()) / "run"  # the job folder's run folder
     return {"what": "va-app", "wall_s": report["seconds"]["upload_to_orbitable_mesh"], "run_dir": str(run_dir),
             "seconds": report["seconds"]}
 

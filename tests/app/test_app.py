@@ -79,7 +79,8 @@ def run_folders(runs: Path) -> list[Path]:
 
 
 def check_result(result, runs: Path, views: int) -> Path:
-    """The final outputs of a run: the textured GLB (loaded by trimesh), the WebM turntable, the files."""
+    """The final outputs of a run: the textured GLB (loaded by trimesh), the WebM turntable, the files
+    (GLB, PLY, and the OBJ with its material and texture in a zip); the job folder."""
     status, _preview, mesh, video, files = result
     assert "**Done**" in status and f"{STEPS} steps on {views} views" in status, status
     assert mesh.endswith("mesh.glb") and video.endswith("turntable.webm") and Path(video).stat().st_size > 0
@@ -87,10 +88,13 @@ def check_result(result, runs: Path, views: int) -> Path:
     geometry = list(scene.geometry.values())
     assert geometry and len(geometry[0].faces) > 0
     assert geometry[0].visual.kind == "texture" and geometry[0].visual.material.baseColorTexture is not None
-    assert sorted(Path(f).name for f in files)[:2] == ["mesh.glb", "mesh.ply"]
-    run_dir = Path(status.split("`")[1])
-    assert run_dir.parent == runs and (run_dir / "mesh.glb").is_file() and (run_dir / "input" / "strip.png").is_file()
-    return run_dir
+    assert sorted(Path(f).name for f in files) == ["mesh.glb", "mesh.ply", "mesh_obj.zip"]
+    with zipfile.ZipFile(next(f for f in files if f.endswith(".zip"))) as bundle:
+        assert sorted(bundle.namelist()) == ["mesh.mtl", "mesh.obj", "mesh.png"]
+    job_dir = Path(status.split("`")[1])
+    assert job_dir.parent == runs and (job_dir / "input" / "strip.png").is_file()
+    assert (job_dir / "run" / "mesh.glb").is_file() and (job_dir / "run" / "summary.json").is_file()
+    return job_dir
 
 
 def test_an_upload_shows_its_views_and_masks_then_trains_to_a_textured_mesh(served, strip):
@@ -109,11 +113,11 @@ def test_an_upload_shows_its_views_and_masks_then_trains_to_a_textured_mesh(serv
     statuses = [output[0] for output in job.outputs()]
     assert any("**Training** step" in s and "left" in s for s in statuses), statuses
     assert any(output[1] for output in job.outputs()), "no preview render was shown"
-    run_dir = check_result(result, runs, views=4)
-    spec = JobSpec.load(run_dir)
+    job_dir = check_result(result, runs, views=4)
+    spec = JobSpec.load(job_dir)
     assert spec.views == 4 and spec.options.steps == STEPS and spec.quality == "default"
-    assert sorted(p.name for p in (run_dir / "previews").iterdir()) == ["step-000020.png", "step-000040.png"]
-    assert json.loads((run_dir / "summary.json").read_text())["views"] == 4
+    assert sorted(p.name for p in (job_dir / "previews").iterdir()) == ["step-000020.png", "step-000040.png"]
+    assert json.loads((job_dir / "run" / "summary.json").read_text())["views"] == 4
 
 
 def _zip(path: Path, folder: Path | None = None, entries: dict[str, bytes] | None = None, skip=()) -> Path:
@@ -188,16 +192,18 @@ def test_cancel_leaves_a_run_that_resume_finishes(served, strip):
     assert session.predict(api_name="/cancel").startswith("Cancelling")
     status = job.result(timeout=300)[0]
     assert "**Cancelled** at step" in status and "--resume" in status, status
-    run_dir = Path(status.split("`")[1])
+    job_dir = Path(status.split("`")[1])
+    run_dir = job_dir / "run"
     step = int(status.split("**Cancelled** at step ")[1].split(";")[0])
     assert 0 < step < STEPS and [p.name for p in list_checkpoints(run_dir)][-1] == f"step-{step:07d}.ckpt"
-    assert not (run_dir / "mesh.glb").exists() and (run_dir / SPEC_FILE).is_file()
+    assert not (run_dir / "mesh.glb").exists() and (job_dir / SPEC_FILE).is_file()
+    assert f"--out {run_dir}" in status
     assert session.predict(api_name="/cancel") == "Nothing is running."
 
     job = session.submit(api_name="/resume")
     result = job.result(timeout=300)
     assert any("continues from its checkpoint" in output[0] for output in job.outputs())
-    assert check_result(result, runs, views=16) == run_dir
+    assert check_result(result, runs, views=16) == job_dir
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["resumed_from_step"] == step and summary["steps"] == STEPS
 

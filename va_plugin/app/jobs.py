@@ -1,4 +1,8 @@
-"""The page's jobs: one run folder each, trained by :func:`va_plugin.api.reconstruct` in a child process.
+"""The page's jobs: one job folder each, trained by :func:`va_plugin.api.reconstruct` in a child process.
+
+A job folder holds ``input/`` (a copy of the upload's input, so that the run resumes on its own),
+``app.json`` (the job's options), ``previews/``, and ``run/``, the run folder ``va-recon`` would write
+(outside it, as the input must be).
 
 A job's child (multiprocessing, spawn) reports over a queue: ``started``, ``message`` (the stage lines),
 ``progress`` (step, total, seconds left, loss; at most twice a second), ``preview`` (a render of the
@@ -47,6 +51,7 @@ from va_plugin.utils.interrupts import terminate_as_interrupt
 
 SPEC_FILE = "app.json"
 INPUT_DIR = "input"
+RUN_DIR = "run"
 PREVIEW_DIR = "previews"
 LOG_FILE = "app.log"
 OBJ_FILES = ("mesh.obj", "mesh.mtl")
@@ -60,9 +65,9 @@ Send = Callable[[dict[str, Any]], None]
 
 @dataclass
 class JobSpec:
-    """One job: the run folder, its input (a copy inside it), and every option of the reconstruction."""
+    """One job: its folder, its input (a copy in the folder), and every option of the reconstruction."""
 
-    run_dir: str
+    job_dir: str
     input: str
     name: str
     """The upload's file name."""
@@ -71,14 +76,18 @@ class JobSpec:
     options: RunOptions = field(default_factory=RunOptions)
     resume: bool = False
 
+    @property
+    def run_dir(self) -> str:
+        return str(Path(self.job_dir) / RUN_DIR)
+
     def save(self) -> Path:
         record = dataclasses.asdict(self)
         record.pop("resume")
-        return write_atomic(Path(self.run_dir) / SPEC_FILE, json.dumps(record, indent=2) + "\n")
+        return write_atomic(Path(self.job_dir) / SPEC_FILE, json.dumps(record, indent=2) + "\n")
 
     @classmethod
-    def load(cls, run_dir: str | Path) -> JobSpec:
-        return cls.from_dict(json.loads((Path(run_dir) / SPEC_FILE).read_text(encoding="utf-8")))
+    def load(cls, job_dir: str | Path) -> JobSpec:
+        return cls.from_dict(json.loads((Path(job_dir) / SPEC_FILE).read_text(encoding="utf-8")))
 
     @classmethod
     def from_dict(cls, record: dict[str, Any]) -> JobSpec:
@@ -89,7 +98,7 @@ def _slug(text: str) -> str:
     return re.sub(r"[^A-Za-z0-9_.-]+", "-", text).strip("-.")[:60] or "upload"
 
 
-def new_run_dir(root: Path, name: str) -> Path:
+def new_job_dir(root: Path, name: str) -> Path:
     """A fresh folder ``ROOT/<date>-<time>-<name>`` (``-2``, ``-3``... when taken)."""
     stem = f"{datetime.now():%Y%m%d-%H%M%S}-{_slug(Path(name).stem)}"
     root.mkdir(parents=True, exist_ok=True)
@@ -100,20 +109,19 @@ def new_run_dir(root: Path, name: str) -> Path:
             return path
         except FileExistsError:
             continue
-    raise VAError(f"no free run folder name under {root} for {stem}")
+    raise VAError(f"no free job folder name under {root} for {stem}")
 
 
 def prepare_job(upload: Upload, settings: AppSettings, quality: str, views: int | str) -> JobSpec:
-    """A fresh run folder with a copy of the upload's input (so the run resumes on its own) and
-    ``app.json``, the job's options."""
-    run_dir = new_run_dir(Path(settings.runs), upload.name)
-    target = run_dir / INPUT_DIR / upload.path.name
+    """A fresh job folder with a copy of the upload's input and ``app.json``, the job's options."""
+    job_dir = new_job_dir(Path(settings.runs), upload.name)
+    target = job_dir / INPUT_DIR / upload.path.name
     if upload.path.is_dir():
         shutil.copytree(upload.path, target)
     else:
         target.parent.mkdir(parents=True)
         shutil.copyfile(upload.path, target)
-    spec = JobSpec(run_dir=str(run_dir), input=str(target), name=upload.name, quality=quality, views=views,
+    spec = JobSpec(job_dir=str(job_dir), input=str(target), name=upload.name, quality=quality, views=views,
                    options=settings.run_options())
     spec.save()
     return spec
@@ -174,14 +182,14 @@ def render_preview(pipeline, path: Path, size: int) -> Path:
     return path
 
 
-def preview_callback(run_dir: Path, every: int, size: int, send: Send) -> TrainingCallback:
-    """A training callback that writes ``RUN/previews/step-N.png`` every ``every`` steps (not at the last,
+def preview_callback(job_dir: Path, every: int, size: int, send: Send) -> TrainingCallback:
+    """A training callback that writes ``JOB/previews/step-N.png`` every ``every`` steps (not at the last,
     which the mesh follows) and sends a ``preview`` message."""
 
     def preview(step: int, attributes: TrainingCallbackAttributes) -> None:
         done = step + 1
         if done % every == 0 and done < attributes.max_steps:
-            path = render_preview(attributes.pipeline, run_dir / PREVIEW_DIR / f"step-{done:06d}.png", size)
+            path = render_preview(attributes.pipeline, job_dir / PREVIEW_DIR / f"step-{done:06d}.png", size)
             send({"kind": "preview", "step": done, "path": str(path)})
 
     return TrainingCallback(preview, where=AFTER_STEP, every=1)
@@ -212,9 +220,9 @@ def browser_video(mp4: Path) -> Path | None:
     return path if path.is_file() and path.stat().st_size > 0 else None
 
 
-def obj_bundle(run_dir: Path) -> Path | None:
-    """``RUN/mesh_obj.zip``: the OBJ export with its material and the textures that names, when the run
-    has ``mesh.obj``; else None."""
+def obj_bundle(run_dir: Path, into: Path) -> Path | None:
+    """``INTO/mesh_obj.zip``: the run's OBJ export with its material and the textures that names, when the
+    run has ``mesh.obj``; else None."""
     run_dir = Path(run_dir)
     if not (run_dir / OBJ_FILES[0]).is_file():
         return None
@@ -225,7 +233,7 @@ def obj_bundle(run_dir: Path) -> Path | None:
             words = line.split()
             if len(words) >= 2 and words[0].lower().startswith("map_") and (run_dir / words[-1]).is_file():
                 files.append(run_dir / words[-1])
-    path = run_dir / OBJ_BUNDLE
+    path = Path(into) / OBJ_BUNDLE
     with zipfile.ZipFile(path, "w", zipfile.ZIP_DEFLATED) as bundle:
         for file in dict.fromkeys(files):
             bundle.write(file, file.name)
@@ -240,11 +248,11 @@ def _show_warning(send: Send):
 
 def run_job(spec: JobSpec, send: Send) -> None:
     """Run one job in this process, reporting through ``send``; ends with one final message."""
-    run_dir, options = Path(spec.run_dir), spec.options
+    job_dir, run_dir, options = Path(spec.job_dir), Path(spec.run_dir), spec.options
     try:
         send({"kind": "started", "pid": os.getpid()})
         warnings.showwarning = _show_warning(send)
-        callbacks = [preview_callback(run_dir, options.preview_every, options.preview_size, send)] \
+        callbacks = [preview_callback(job_dir, options.preview_every, options.preview_size, send)] \
             if options.preview_every > 0 else []
         result = reconstruct(spec.input, run_dir, method=options.method, quality=spec.quality, views=spec.views,
                              steps=options.steps, device=options.device, progress=ProgressReport(send),
@@ -254,8 +262,8 @@ def run_job(spec: JobSpec, send: Send) -> None:
                              threads=options.threads, overrides=list(options.overrides))
         record = dict(result.record)
         video = browser_video(result.turntable) if result.turntable is not None else None
-        bundle = obj_bundle(run_dir)
-        record.update(run_dir=str(run_dir), webm=None if video is None else str(video),
+        bundle = obj_bundle(run_dir, job_dir)
+        record.update(run_dir=str(run_dir), job_dir=str(job_dir), webm=None if video is None else str(video),
                       obj_zip=None if bundle is None else str(bundle))
         send({"kind": "done", "record": record})
     except TrainingInterrupted as stop:
@@ -266,7 +274,7 @@ def run_job(spec: JobSpec, send: Send) -> None:
     except VAError as exc:
         send({"kind": "error", "message": str(exc)})
     except Exception as exc:  # anything else: one line on the page, the traceback in the run folder
-        log = run_dir / LOG_FILE
+        log = job_dir / LOG_FILE
         with open(log, "a", encoding="utf-8") as handle:
             handle.write(traceback.format_exc())
         first = str(exc).strip().splitlines()[0][:120] if str(exc).strip() else ""
@@ -364,7 +372,7 @@ class Job:
                         how = f"exit status {code}" if code is None or code >= 0 else (
                             "killed: out of memory?" if code == -signal.SIGKILL else f"signal {-code}")
                         yield {"kind": "error", "message": f"the job's process ended without a result ({how}); "
-                                                           f"{self.spec.run_dir} keeps what it saved"}
+                                                           f"{self.spec.job_dir} keeps what it saved"}
                         return
                 if message["kind"] == "started":
                     with self._lock:

@@ -53,15 +53,15 @@ class Status:
 
     def __init__(self, spec: JobSpec) -> None:
         views = "all views" if spec.views == "all" else f"{spec.views} views"
-        self.run_dir = spec.run_dir
-        self.head = f"**Run** `{spec.run_dir}`: {spec.options.method}, {spec.quality} quality, {views}"
+        self.job_dir = spec.job_dir
+        self.head = f"**Run** `{spec.job_dir}`: {spec.options.method}, {spec.quality} quality, {views}"
         self.training = ""
         self.lines: list[str] = []
         self.ending = ""
 
     def add(self, line: str) -> None:
-        """A stage line, with the run folder's paths shown relative to it."""
-        self.lines.append(line.replace(f"{self.run_dir}/", "").replace(self.run_dir, "the run folder"))
+        """A stage line, with the job folder's paths shown relative to it."""
+        self.lines.append(line.replace(f"{self.job_dir}/", "").replace(self.job_dir, "the job folder"))
 
     def progress(self, message: dict[str, Any], cancelling: bool) -> None:
         step, total = message["step"], message["total"]
@@ -208,12 +208,12 @@ class App:
         if not self._begin(request.session_hash):
             yield self._empty(state, "Cancelled before it started.")
             return
-        run_dir = state.get("stopped")
-        if not run_dir or not list_checkpoints(Path(run_dir)):
+        job_dir = state.get("stopped")
+        spec = JobSpec.load(job_dir) if job_dir else None
+        if spec is None or not list_checkpoints(Path(spec.run_dir)):
             self._end(request.session_hash)
             yield self._empty(state, "No stopped run with a checkpoint to resume in this session.")
             return
-        spec = JobSpec.load(run_dir)
         spec.resume = True
         yield from self._follow(spec, state, request.session_hash)
 
@@ -233,7 +233,7 @@ class App:
     def _follow(self, spec: JobSpec, state: dict, session: str) -> Iterator[tuple]:
         began = time.perf_counter()
         status = Status(spec)
-        state = {**state, "run": spec.run_dir, "stopped": None}
+        state = {**state, "job": spec.job_dir, "stopped": None}
         job = self.launcher.start(spec)
         with self.lock:
             self.running[session] = job
@@ -255,10 +255,10 @@ class App:
                     yield self._done(status, message["record"], began, preview, state)
                     return
                 elif kind == "cancelled":
-                    state["stopped"] = spec.run_dir if list_checkpoints(Path(spec.run_dir)) else None
+                    state["stopped"] = spec.job_dir if list_checkpoints(Path(spec.run_dir)) else None
                     status.ending = self._stopped_text(spec, message, state["stopped"] is not None)
                 elif kind == "error":
-                    state["stopped"] = spec.run_dir if list_checkpoints(Path(spec.run_dir)) else None
+                    state["stopped"] = spec.job_dir if list_checkpoints(Path(spec.run_dir)) else None
                     status.ending = f"**Failed.** {message['message']}"
                 yield status.text(), preview, None, None, None, state
         except GeneratorExit:  # Gradio let go of the event: the run stops with a checkpoint, not orphaned
