@@ -57,8 +57,7 @@ def main(argv: list[str] | None = None) -> int:
                            mesh_resolution=args.mesh_resolution, turntable_frames=args.turntable_frames,
                            preview_every=args.preview_every, threads=args.threads).validate()
     try:
-        # Gradio loads only here: the job processes re-import this module and need none of it
-        from va_plugin.app import server
+        from va_plugin.app import server  # Gradio only here: job processes re-import this module
     except ImportError as exc:
         raise VAError(f"va-app needs the app extra ({exc.name or exc}): pip install -e '.[app]'") from None
     server.launch(settings)
