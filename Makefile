@@ -1,5 +1,5 @@
-# The two commands of the README. Both run the setup first (it is quick once done).
-.PHONY: setup demo test lint
+# The commands of the README. Each runs the setup first (it is quick once done).
+.PHONY: setup demo test lint app browser-check
 
 .venv/.va-setup-done: setup.py scripts/setup.sh
 	bash scripts/setup.sh
@@ -8,6 +8,13 @@ setup: .venv/.va-setup-done
 
 demo: setup
 	.venv/bin/va-demo
+
+app: setup
+	.venv/bin/va-app
+
+# va-app in headless Chromium (Debian's; --install: apt-get it when missing): upload, run, screenshot
+browser-check: setup
+	.venv/bin/python scripts/browser_check.py --install --out outputs/browser_check/page.png
 
 lint: setup
 	.venv/bin/ruff check .

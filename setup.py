@@ -9,6 +9,8 @@ from setuptools import find_packages, setup
 BUILTIN_METHODS = runpy.run_path(
     str(Path(__file__).resolve().parent / "method_configs" / "__init__.py"))["BUILTIN_METHODS"]
 METHODS = [f"{name} = {reference}" for name, reference in BUILTIN_METHODS.items()]
+# va-app's web page; its tests (tests/app) drive it through gradio_client, which gradio brings
+APP = ["gradio>=6,<7"]
 
 setup(
     name="va-plugin",
@@ -32,9 +34,10 @@ setup(
         "ninja",         # builds the hash grid's fused CPU kernels (torch.utils.cpp_extension needs it)
     ],
     extras_require={
-        "test": ["pytest", "hypothesis", "ruff"],  # the linter that `make test` runs first is ruff
+        "test": ["pytest", "hypothesis", "ruff", *APP],  # the linter that `make test` runs first is ruff
         "plots": ["matplotlib"],
         "ray": ["ray"],  # va-batch --engine ray
+        "app": APP,  # va-app
     },
     entry_points={
         "console_scripts": [
@@ -44,6 +47,7 @@ setup(
             "va-demo = va_plugin.cli.demo:main",
             "va-recon = va_plugin.cli.recon:main",
             "va-batch = va_plugin.cli.batch:main",
+            "va-app = va_plugin.cli.app:main",
         ],
         "va_plugin.methods": METHODS,
     },

@@ -39,6 +39,7 @@ from va_plugin.config import apply_override, validate_config
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.engine.callbacks import TrainingCallback
 from va_plugin.engine.run_folder import check_output_file, claim_run_folder, writing_into_run
 from va_plugin.engine.trainer import (
     TrainerConfig,
@@ -210,12 +211,13 @@ def check_training_memory(config: TrainerConfig) -> None:
 
 def _train(config: TrainerConfig, progress: Progress | None, on_message: Callable[[str], None] | None,
            before_training: Callable[[Any], None] | None = None, header: str | None = None,
-           stop: Stop = None) -> int | None:
+           stop: Stop = None, callbacks: Iterable[TrainingCallback] = ()) -> int | None:
     """:func:`train`'s work in a claimed run folder; the step the run resumed from (None for a fresh run).
     ``header``: a line said once the data has loaded (bad input stays one line: the error alone)."""
     run_dir = Path(config.output_dir)
     say = on_message or _quiet
     trainer = config.setup()
+    trainer.callbacks.extend(callbacks)
     for line in (header, input_summary(trainer.pipeline, run_dir)):
         if line:
             say(line)
@@ -235,21 +237,24 @@ def _quiet(line: str) -> None:
 
 def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = False,
           progress: Progress | None = None, on_message: Callable[[str], None] | None = None,
-          stop: Stop = None) -> Path:
+          stop: Stop = None, callbacks: Iterable[TrainingCallback] = ()) -> Path:
     """Train ``config`` into its run folder (``config.output_dir``) and return that folder.
 
     The folder must be new, empty, or a run of its own (see :mod:`va_plugin.engine.run_folder`);
     ``overwrite``: write into any folder (an earlier run there starts again). ``resume``: continue from the
     folder's newest checkpoint, when the method, preset, data and options are the run's own; without it, a
     folder that holds checkpoints is refused. ``progress(step, total, losses)`` is called after each step.
-    ``on_message(line)`` gets the lines a user should see (the inputs found, a resume). A run whose health
-    guard intervened ends with a warning. Ctrl-C, SIGTERM or ``stop`` (a ``threading.Event`` set, or a
-    callable returning True, polled between steps) end the step in progress, save a checkpoint and raise
-    :class:`TrainingInterrupted`; ``resume=True`` then continues exactly where it stopped."""
+    ``on_message(line)`` gets the lines a user should see (the inputs found, a resume). ``callbacks``: more
+    :class:`~va_plugin.engine.callbacks.TrainingCallback` s for the trainer, after the model's own (a
+    preview render every few hundred steps, say); one that changes no parameter and draws no random
+    number leaves the training as it is. A run whose health guard intervened ends with a warning. Ctrl-C,
+    SIGTERM or ``stop`` (a ``threading.Event`` set, or a callable returning True, polled between steps)
+    end the step in progress, save a checkpoint and raise :class:`TrainingInterrupted`; ``resume=True``
+    then continues exactly where it stopped."""
     check_training_memory(config)
     with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
                           flag="--output-dir"):
-        _train(config, progress, on_message, stop=stop)
+        _train(config, progress, on_message, stop=stop, callbacks=callbacks)
     return Path(config.output_dir)
 
 
@@ -589,6 +594,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
                 faces: int | None = None, frame: str = "upright",
                 evaluate_options: Mapping[str, Any] | None = None,
                 show_progress: bool = False, on_message: Callable[[str], None] | None = None,
+                callbacks: Iterable[TrainingCallback] = (),
                 overrides: Mapping[str, Any] | Iterable[str] | None = None, stop: Stop = None,
                 **more_overrides: Any) -> Reconstruction:
     """A generator output (or scene folder) to a textured mesh, in one call: what ``va-recon`` does.
@@ -601,7 +607,8 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     ``mesh.obj`` upright by default; ``mesh.ply`` in the training frame); ``evaluate_options``: keywords of
     :func:`evaluate` for the scores.
     ``progress(step, total, losses)``: called after each training step; ``show_progress``: progress bars on
-    stderr; ``on_message(line)``: the stage lines. ``overrides`` are config overrides as in
+    stderr; ``on_message(line)``: the stage lines; ``callbacks``: more training callbacks (see
+    :func:`train`). ``overrides`` are config overrides as in
     :func:`build_config`, and so is any other keyword (``pipeline__model__eikonal_weight=0.05``).
     The run folder must be new, empty or a run of its own (``overwrite``: any folder; see :func:`train`).
     Interrupted (Ctrl-C, SIGTERM, or ``stop`` as in :func:`train`), it saves a checkpoint and raises
@@ -638,7 +645,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
             if texture:
                 check_texture_memory(texture_size, len(trainer.pipeline.datamanager.train))
 
-        resumed_from = _train(config, progress, say, before_training=check_bake,
+        resumed_from = _train(config, progress, say, before_training=check_bake, callbacks=callbacks,
                               header=f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} "
                                      f"-> {run_dir}", stop=stop)
         loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
