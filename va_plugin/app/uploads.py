@@ -18,7 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
-from va_plugin.api import QUALITIES, build_config
+from va_plugin.api import QUALITIES, build_config, check_views
 from va_plugin.batch.inputs import find_objects
 from va_plugin.data.dataparsers import detect_format, image_shape
 from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES
@@ -165,10 +165,8 @@ def stage_upload(file: str | Path, staging_root: Path, max_bytes: int) -> Upload
 
 def parse_views(choice: str | int | None) -> int | str:
     """The page's view choice as :func:`~va_plugin.api.reconstruct` takes it."""
-    text = str(choice if choice is not None else "all")
-    if text not in VIEW_CHOICES:
-        raise ConfigError(f"views {text!r} is not one of {', '.join(VIEW_CHOICES)}")
-    return "all" if text == "all" else int(text)
+    text = str(choice if choice is not None else "all").strip()
+    return check_views(int(text) if text.isdigit() else text)
 
 
 def _as_uint8(image: np.ndarray) -> np.ndarray:

@@ -23,6 +23,7 @@ from typing import Any
 
 from va_plugin import api
 from va_plugin.data.images import write_image
+from va_plugin.engine.run_folder import is_run_folder
 from va_plugin.errors import VAError
 from va_plugin.export.render import mesh_views
 
@@ -112,7 +113,8 @@ def reconstruct(job: ObjectJob, on_message=None) -> dict[str, Any]:
         texture_size=job.texture_size or 1024, fusion=job.fusion, mesh_resolution=settings.mesh_resolution,
         turntable_frames=job.turntable_frames, threads=job.threads, faces=job.faces, frame=job.frame,
         show_progress=job.progress,
-        on_message=on_message, resume=True, overwrite=True,  # runs/<name> is the batch's own (its batch.log)
+        on_message=on_message, resume=is_run_folder(job.run_dir),  # continue an interrupted object
+        overwrite=True,  # runs/<name> is the batch's own (its batch.log)
         evaluate_options={
             "image_scale": settings.image_scale, "max_views": settings.max_views, "n_samples": settings.n_samples},
         **{name: value for name, value in job.options.items() if name != "views"})

@@ -24,6 +24,7 @@ from va_plugin.api import (
 from va_plugin.bench.scenes import default_scene
 from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, add_quiet_option, friendly_errors
 from va_plugin.data.images import read_image, write_image
+from va_plugin.engine.run_folder import is_run_folder
 from va_plugin.export.render import render_turntable
 
 DEMO_STEPS: dict = {"neus": 1000}
@@ -73,7 +74,8 @@ def main(argv: list[str] | None = None) -> int:
     if not args.quiet:
         print(f"default scene: {default_scene(args.resolution)}")
     try:
-        run = train(config, resume=True, overwrite=args.overwrite, on_message=None if args.quiet else print)
+        run = train(config, resume=is_run_folder(config.output_dir), overwrite=args.overwrite,
+                    on_message=None if args.quiet else print)
     except TrainingInterrupted as interrupt:
         print(f"{interrupt}; run va-demo again to continue", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -26,7 +26,7 @@ from typing import Any
 
 from va_plugin.config import to_dict
 from va_plugin.engine.metrics_log import METRICS_FILE
-from va_plugin.engine.trainer import CHECKPOINT_DIR, CHECKPOINT_GLOB, TrainerConfig
+from va_plugin.engine.trainer import CHECKPOINT_DIR, TrainerConfig, list_checkpoints
 from va_plugin.errors import ConfigError, VAError
 from va_plugin.utils.files import write_atomic
 
@@ -66,7 +66,7 @@ def check_output_dir(path: Path, flag: str) -> None:
 
 
 def has_checkpoints(path: Path) -> bool:
-    return any((Path(path) / CHECKPOINT_DIR).glob(CHECKPOINT_GLOB))
+    return bool(list_checkpoints(Path(path)))
 
 
 def is_run_folder(path: Path) -> bool:
