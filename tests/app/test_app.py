@@ -10,6 +10,7 @@ import json
 import time
 import zipfile
 from pathlib import Path
+from types import SimpleNamespace
 
 import numpy as np
 import pytest
@@ -206,6 +207,25 @@ def test_cancel_leaves_a_run_that_resume_finishes(served, strip):
     assert check_result(result, runs, views=16) == job_dir
     summary = json.loads((run_dir / "summary.json").read_text())
     assert summary["resumed_from_step"] == step and summary["steps"] == STEPS
+
+
+def test_an_upload_while_the_run_waits_in_the_queue_keeps_that_runs_input(served, strip, tmp_path):
+    """Start clicked (the run queued), then another file dropped in before the run leaves the queue: the
+    run trains on the file it was started with, and the newer upload stays staged for the next run."""
+    _, runs, app = served
+    request = SimpleNamespace(session_hash="queued-session")
+    other = write_syncdreamer_strip(tmp_path / "other.png", tile=32)
+    assert app.inspect(str(strip), "default", "4", {}, request)[2]["format"] == "syncdreamer"
+    app.ask(request)  # what the page's Start does before the run joins the queue
+    state = app.inspect(str(other), "default", "4", {}, request)[2]
+    outputs = list(app.run("default", "4", state, request))
+    job_dir = check_result(outputs[-1][:5], runs, views=4)  # the last item is the page state
+    assert [p.name for p in (job_dir / "input").iterdir()] == ["strip.png"]
+    staged = app.staged[request.session_hash]
+    assert staged.path.name == "other.png" and staged.path.is_file()
+    assert not app.claimed  # the claim ends with the run's start
+    app.forget(state, request)
+    assert not staged.path.exists()
 
 
 def test_the_page_needs_no_network_and_says_what_it_takes(served):

@@ -93,6 +93,7 @@ class App:
         self.lock = threading.Lock()
         self.running: dict[str, Any] = {}
         self.staged: dict[str, Upload] = {}
+        self.claimed: dict[str, Upload] = {}  # the upload a session's queued run will train on
         self.waiting: set[str] = set()
         self.cancel_waiting: set[str] = set()
 
@@ -107,9 +108,23 @@ class App:
 
     # -- uploads ----------------------------------------------------------------------------------
     def _drop_upload(self, session: str) -> None:
+        """The session's staged upload goes (its files stay while a queued run still needs them)."""
         with self.lock:
             upload = self.staged.pop(session, None)
-        if upload is not None:
+            keep = upload is not None and upload is self.claimed.get(session)
+        if upload is not None and not keep:
+            upload.discard()
+
+    def _take_claim(self, session: str) -> Upload | None:
+        """The upload the session's run was queued with (else the one staged now), claimed no longer."""
+        with self.lock:
+            return self.claimed.pop(session, None) or self.staged.get(session)
+
+    def _release(self, session: str, upload: Upload | None) -> None:
+        """Discard a claimed upload that is no longer the session's staged one."""
+        with self.lock:
+            stale = upload is not None and self.staged.get(session) is not upload
+        if stale:
             upload.discard()
 
     def _inspect(self, upload: Upload, quality: str, views: str, state: dict) -> tuple[str, list, dict]:
@@ -162,6 +177,9 @@ class App:
         with self.lock:
             self.waiting.add(request.session_hash)
             self.cancel_waiting.discard(request.session_hash)
+            upload = self.staged.get(request.session_hash)
+            if upload is not None:  # a newer upload while the run waits must not change or delete its input
+                self.claimed[request.session_hash] = upload
 
     def cancel(self, request: gr.Request) -> str:
         """Stop the session's job (it saves a checkpoint), or keep its queued run from starting."""
@@ -181,30 +199,34 @@ class App:
     def run(self, quality: str, views: str, state: dict | None, request: gr.Request) -> Iterator[tuple]:
         """A job on the staged upload, followed to its end."""
         state = dict(state or {})
-        if not self._begin(request.session_hash):
-            yield self._empty(state, "Cancelled before it started.")
-            return
-        upload = self.staged.get(request.session_hash)
-        if upload is None or not state.get("format"):
-            self._end(request.session_hash)
-            yield self._empty(state, "Upload a file first." if upload is None else
-                              "This upload cannot be used (see above); upload another.")
-            return
+        upload = self._take_claim(request.session_hash)
         try:
-            if quality not in QUALITIES:
-                raise VAError(f"quality {quality!r} is not one of {', '.join(QUALITIES)}")
-            chosen = parse_views(views)
-            spec = prepare_job(upload, self.settings, quality,
-                               chosen if state.get("format") == "syncdreamer" else "all")
-        except (VAError, OSError) as exc:
-            self._end(request.session_hash)
-            yield self._empty(state, _problem(upload.tell(str(exc))))
-            return
+            if not self._begin(request.session_hash):
+                yield self._empty(state, "Cancelled before it started.")
+                return
+            if upload is None or not state.get("format"):
+                self._end(request.session_hash)
+                yield self._empty(state, "Upload a file first." if upload is None else
+                                  "This upload cannot be used (see above); upload another.")
+                return
+            try:
+                if quality not in QUALITIES:
+                    raise VAError(f"quality {quality!r} is not one of {', '.join(QUALITIES)}")
+                chosen = parse_views(views)
+                spec = prepare_job(upload, self.settings, quality,
+                                   chosen if state.get("format") == "syncdreamer" else "all")
+            except (VAError, OSError) as exc:
+                self._end(request.session_hash)
+                yield self._empty(state, _problem(upload.tell(str(exc))))
+                return
+        finally:
+            self._release(request.session_hash, upload)
         yield from self._follow(spec, state, request.session_hash)
 
     def resume(self, state: dict | None, request: gr.Request) -> Iterator[tuple]:
         """The session's stopped run, continued from its checkpoint."""
         state = dict(state or {})
+        self._release(request.session_hash, self._take_claim(request.session_hash))
         if not self._begin(request.session_hash):
             yield self._empty(state, "Cancelled before it started.")
             return
