@@ -31,7 +31,7 @@ from va_plugin.eval.evaluate import ground_truth_mesh_path, image_metrics, load_
 from va_plugin.eval.mesh_render import SCORE_SUPERSAMPLE, check_supersample, textured_mesh_metrics
 from va_plugin.export.atlas import MAX_TEXTURE_FACES
 from va_plugin.export.mesh import extract_mesh
-from va_plugin.export.texture import bake_texture, check_texture_size, field_fallback, run_views
+from va_plugin.export.texture import bake_texture, check_texture_size, run_views
 from va_plugin.export.views import Views
 from va_plugin.export.writing import bake_picture
 
@@ -127,10 +127,9 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
     if "from" in field:
         record["field_from"] = field["from"]
     record["views"] = field["image_params"]["views"]
-    fallback = field_fallback(pipeline.model)
     atlas = None
     for fusion in bakes:
-        textured, report = bake_texture(mesh, run_views(pipeline), size=size, fallback=fallback, atlas=atlas,
+        textured, report = bake_texture(mesh, run_views(pipeline), size=size, atlas=atlas,
                                         max_faces=max_faces, **bake_options(fusion))
         record["faces_textured"] = len(textured.faces)
         atlas = (textured.vertices, textured.faces, textured.uv)  # unwrap once, bake twice
@@ -141,7 +140,7 @@ def evaluate(run: Path, size: int, max_views, timing_count: int, bakes=("robust"
             bake_picture(textured, report, run / "texture_bake.png")
     if timing_count:
         _, report = bake_texture(mesh, timing_views(pipeline, timing_count), size=size, fusion="robust",
-                                 fallback=fallback, atlas=atlas)
+                                 atlas=atlas)
         record[f"bake_{timing_count}_views_seconds"] = report.summary()["seconds"]
     return record
 

@@ -11,7 +11,7 @@ from va_plugin.api import EVAL_FILE, check_evaluate_options, check_scorable, eva
 from va_plugin.cli.common import ArgumentParser, friendly_errors
 from va_plugin.eval.mesh_render import check_supersample, textured_mesh_metrics
 from va_plugin.export.mesh import extract_mesh
-from va_plugin.export.texture import bake_texture, check_texture_size, field_fallback, run_views
+from va_plugin.export.texture import bake_texture, check_texture_size, run_views
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -70,7 +70,7 @@ def textured_mesh_scores(pipeline, mesh, args, use_lpips: bool):
     """``mesh_psnr``, ``mesh_ssim``, ``mesh_lpips`` of the run's mesh textured from its input views."""
     started = time.perf_counter()
     textured, report = bake_texture(mesh, run_views(pipeline), size=args.texture_size, fusion=args.fusion,
-                                    fallback=field_fallback(pipeline.model), progress=not args.no_progress,
+                                    progress=not args.no_progress,
                                     harmonise_views=False if args.no_harmonise else None)
     scores = textured_mesh_metrics(pipeline, textured, args.image_scale, args.max_views, use_lpips,
                                    progress=not args.no_progress, supersample=args.texture_supersample)

@@ -1,7 +1,8 @@
 """Textured meshes: a mesh's texture baked from the input views, and baking a loaded run's mesh.
 
 Per texel: every view's color and weight (:mod:`va_plugin.export.views`), levelled across views and
-fused (:mod:`va_plugin.export.fusion`); texels no view sees take a fall-back color; empty texels around
+fused (:mod:`va_plugin.export.fusion`); texels no view sees take the color of the nearest seen surface
+(:mod:`va_plugin.export.fill`); empty texels around
 the atlas charts (:mod:`va_plugin.export.atlas`) are dilated so filtering does not bleed into seams.
 """
 
@@ -18,10 +19,11 @@ import trimesh
 
 from va_plugin.errors import VAError
 from va_plugin.export.atlas import MAX_TEXTURE_FACES, dilate, rasterize_uv, simplify_for_texture, unwrap
+from va_plugin.export.fill import fill_from_seen
 from va_plugin.export.frame import check_frame
 from va_plugin.export.fusion import FUSIONS, apply_harmonisation, fuse, harmonise
 from va_plugin.export.inconsistency import inconsistency_maps
-from va_plugin.export.views import Views, view_samples
+from va_plugin.export.views import OPAQUE, Views, view_samples
 from va_plugin.export.writing import bake_picture, check_texture_output, write_bake_record, write_textured_mesh
 from va_plugin.raycast import smooth_vertex_normals
 from va_plugin.utils.memory import check_texture_memory
@@ -81,14 +83,15 @@ def check_texture_size(size: int) -> None:
 
 
 Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
-"""Colors ``[m, 3]`` of surface points ``[m, 3]`` with normals ``[m, 3]`` (e.g. the field's own color)."""
+"""Colors ``[m, 3]`` of surface points ``[m, 3]`` with normals ``[m, 3]``."""
 
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Fallback | None = None, progress: bool = False, atlas=None,
                  harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES):
     """UV-unwrap ``mesh`` (simplified to ``max_faces`` first) and bake its texture from ``views``:
-    ``(TexturedMesh, BakeReport)``. ``fallback``: the color of texels no view sees. ``atlas``: the
+    ``(TexturedMesh, BakeReport)``. ``fallback``: the color of texels no view sees (None: the nearest seen
+    surface's, :func:`~va_plugin.export.fill.fill_from_seen`). ``atlas``: the
     ``(vertices, faces, uv)`` of an earlier :func:`~va_plugin.export.atlas.unwrap` at this size, reused.
     ``harmonise_views``: level the views' colors before fusing (None: with robust fusion only).
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
@@ -129,17 +132,17 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
         colors = apply_harmonisation(colors, weights, gains)
     seen = (weights > 0).any(1)
     fused, share = fuse(colors, weights, fusion)
-    if fallback is not None and (~seen).any():
-        fused[~seen] = np.clip(fallback(points[~seen], normals[~seen]), 0.0, 1.0)
-        seen_or_filled = np.ones_like(seen)
-    else:
-        seen_or_filled = seen
+    if (~seen).any():
+        if fallback is None:
+            fused = fill_from_seen(points, normals, fused, seen)
+        else:
+            fused[~seen] = np.clip(fallback(points[~seen], normals[~seen]), 0.0, 1.0)
     seconds["bake"] = time.perf_counter() - started
     image = np.zeros((size, size, 3), np.float32)
     filled = np.zeros((size, size), bool)
     rows, cols = np.nonzero(covered)
     image[rows, cols] = fused
-    filled[rows[seen_or_filled], cols[seen_or_filled]] = True
+    filled[rows, cols] = True
     image = dilate(image, filled)
     maps = np.zeros((len(views), size, size), np.float32)
     maps[:, rows, cols] = share.T
@@ -147,11 +150,12 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     return TexturedMesh(vertices, faces, uv, np.clip(image, 0.0, 1.0)), report
 
 
-def run_views(pipeline, inconsistency: bool = False, progress: bool = False) -> Views:
-    """The training views of a loaded run; with ``inconsistency`` (view-adaptive runs) also their
-    inconsistency maps (|own-branch render - canonical render|, half resolution)."""
+def run_views(pipeline, inconsistency: bool = False, progress: bool = False, opaque: float = OPAQUE) -> Views:
+    """The training views of a loaded run, a pixel inside the object where its mask is at least ``opaque``;
+    with ``inconsistency`` (view-adaptive runs) also their inconsistency maps (|own-branch render -
+    canonical render|, half resolution)."""
     dm = pipeline.datamanager
-    masks = None if dm.masks is None else dm.masks.cpu().numpy().reshape(dm.images.shape[:3]) > 0.5
+    masks = None if dm.masks is None else dm.masks.cpu().numpy().reshape(dm.images.shape[:3]) >= opaque
     maps = None
     if inconsistency:
         if not pipeline.model.field.has_view_branches or not pipeline.model.field.branches_active():
@@ -161,32 +165,11 @@ def run_views(pipeline, inconsistency: bool = False, progress: bool = False) -> 
     return Views(dm.cameras.to(torch.device("cpu")), dm.images.cpu().numpy().astype(np.float32), masks, maps)
 
 
-def field_fallback(model) -> Fallback:
-    """The model's canonical surface color as a fall-back for texels no view sees."""
-    device = next(model.parameters()).device
-
-    def color(points: np.ndarray, normals: np.ndarray) -> np.ndarray:
-        out = []
-        was_training = model.training
-        model.eval()
-        try:
-            for p, n in zip(np.array_split(points, max(1, len(points) // 16384 + 1)),
-                            np.array_split(normals, max(1, len(normals) // 16384 + 1))):
-                if len(p):
-                    out.append(model.surface_color(torch.as_tensor(p, device=device),
-                                                   torch.as_tensor(n, dtype=torch.float32, device=device)).cpu())
-        finally:
-            model.train(was_training)
-        return torch.cat(out).numpy() if out else np.zeros((0, 3), np.float32)
-
-    return color
-
-
 def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Path], size: int = 1024,
                      fusion: str = "robust", inconsistency: bool = False, progress: bool = True,
                      harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES,
                      frame: str = "upright", record: dict | None = None):
-    """Bake ``mesh`` from a loaded run's training views (field color where none sees), write it to
+    """Bake ``mesh`` from a loaded run's training views, write it to
     ``output`` (GLB or OBJ+MTL+PNG; several paths: one bake written in each format) in ``frame`` with
     ``<stem>_frame.json``, and ``<stem>_bake.png`` (atlas | per-view weight maps) and ``<stem>_bake.json``
     beside the first (with ``record`` added to the JSON); returns ``(TexturedMesh, BakeReport, written
@@ -196,8 +179,8 @@ def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Pa
         check_texture_output(path)
     check_frame(frame)
     views = run_views(pipeline, inconsistency=inconsistency, progress=progress)
-    textured, report = bake_texture(mesh, views, size=size, fusion=fusion, fallback=field_fallback(pipeline.model),
-                                    progress=progress, harmonise_views=harmonise_views, max_faces=max_faces)
+    textured, report = bake_texture(mesh, views, size=size, fusion=fusion, progress=progress,
+                                    harmonise_views=harmonise_views, max_faces=max_faces)
     written: list[Path] = []
     for path in outputs:
         written.extend(p for p in write_textured_mesh(textured, path, frame) if p not in written)

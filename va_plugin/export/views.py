@@ -21,6 +21,9 @@ EDGE_PIXELS = 3.0
 """A view's weight rises from 0 at EDGE_MARGIN pixels inside its silhouette to 1 this many pixels further."""
 EDGE_MARGIN = 1.5
 """Pixels this close to the silhouette edge blend the object with the background: they give no color."""
+OPAQUE = 0.99
+"""A pixel belongs to the object where its mask is at least this; partial pixels at the outline mix in the
+background's color, so they count as background."""
 MIN_COS = 0.1
 """Views seeing the surface more grazing than this (cos of the angle to the normal) are ignored."""
 INCONSISTENCY_SCALE = 0.05
