@@ -30,7 +30,7 @@ def fill_from_seen(points: np.ndarray, normals: np.ndarray, colors: np.ndarray, 
     known = np.nonzero(seen)[0]
     unknown = np.nonzero(~seen)[0]
     k = int(min(max(neighbours, 1), len(known)))
-    distance, nearest = cKDTree(points[known]).query(points[unknown], k=k)
+    distance, nearest = cKDTree(points[known]).query(points[unknown], k=k, workers=-1)
     distance = np.asarray(distance, np.float64).reshape(len(unknown), k)
     nearest = known[np.asarray(nearest).reshape(len(unknown), k)]
     agree = np.einsum("mc,mkc->mk", normals[unknown], normals[nearest])

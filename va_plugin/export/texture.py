@@ -2,8 +2,8 @@
 
 Per texel: every view's color and weight (:mod:`va_plugin.export.views`), levelled across views and
 fused (:mod:`va_plugin.export.fusion`); texels no view sees take the color of the nearest seen surface
-(:mod:`va_plugin.export.fill`); empty texels around
-the atlas charts (:mod:`va_plugin.export.atlas`) are dilated so filtering does not bleed into seams.
+(:mod:`va_plugin.export.fill`); empty texels around the atlas charts (:mod:`va_plugin.export.atlas`) are
+dilated so filtering does not bleed into seams.
 """
 
 from __future__ import annotations
