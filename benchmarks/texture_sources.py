@@ -29,6 +29,7 @@ import numpy as np
 import torch
 
 from va_plugin.api import load_run
+from va_plugin.cli.common import friendly_errors
 from va_plugin.export.atlas import rasterize_uv
 from va_plugin.export.mesh import extract_mesh
 from va_plugin.export.texture import bake_texture, run_views
@@ -133,6 +134,7 @@ def table(records) -> str:
     return "\n".join(lines)
 
 
+@friendly_errors
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--runs", type=Path, nargs="+", required=True)
