@@ -80,6 +80,21 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
             "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}
 
 
+def rescore_one(row: dict[str, Any], run_dir: str) -> dict[str, Any]:
+    """The row with its scores evaluated again on the run's final state (its scene as it is now); its
+    seconds stay those of the run."""
+    import torch
+
+    from va_plugin.api import load_run
+    from va_plugin.eval.evaluate import evaluate_run
+
+    torch.set_num_threads(1)
+    pipeline, state = load_run(Path(run_dir), device="cpu").parts()
+    result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
+    return {**row, "cd": result["cd"], "iou": result["iou"], "psnr": result["psnr"], "ssim": result["ssim"],
+            "lpips": result.get("lpips")}
+
+
 def texture_fidelity(scene: Path) -> float:
     """PSNR of the baked ground-truth texture rendered at the rig's views against the renders (on white)."""
     from va_plugin.bench.scenes.rig import benchmark_cameras
@@ -165,6 +180,31 @@ def time_figure(rows: list[dict[str, Any]], configs: list[tuple[int, str]], path
     return path
 
 
+def rescore(args: argparse.Namespace, done: dict[str, dict[str, Any]], rows_file: Path) -> int:
+    """``--rescore``: every scene of OUT built again (its training views must come out the same), then
+    every finished run scored on it."""
+    import shutil
+
+    scenes = args.out / "scenes"
+    for scene in sorted(scenes.iterdir()) if scenes.is_dir() else []:
+        name, level, views = scene.name.rsplit("-", 2)
+        before = {p.name: p.read_bytes() for p in (scene / "images").glob("train_*")}
+        shutil.rmtree(scene)
+        build(scenes, args.data_root, name, int(views[1:]), int(level[1:]))
+        after = {p.name: p.read_bytes() for p in (scene / "images").glob("train_*")}
+        if before != after:
+            sys.exit(f"error: the training views of {scene} changed when rebuilt; retrain instead of rescoring")
+    shutil.copy(rows_file, args.out / "rows.before-rescore.jsonl")
+    rows = [r for r in done.values() if (args.out / "runs" / r["key"]).is_dir()]
+    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
+        new = list(pool.map(rescore_one, rows, [str(args.out / "runs" / r["key"]) for r in rows]))
+    for row in new:
+        done[row["key"]] = row
+        print(json.dumps(row), file=sys.stderr)
+    rows_file.write_text("".join(json.dumps(r) + "\n" for r in done.values()))
+    return 0
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data-root", type=Path, default=Path("../shared/data/gso"))
@@ -177,6 +217,9 @@ def main(argv=None) -> int:
     parser.add_argument("--variant", default="", help="name of the overridden variant (part of each row's key)")
     parser.add_argument("--jobs", type=int, default=2)
     parser.add_argument("--out", type=Path, default=Path("outputs/bench/all-views"))
+    parser.add_argument("--rescore", action="store_true",
+                        help="rebuild OUT's scenes with the current code and score every finished run of OUT again "
+                             "(training stays); the old rows go to rows.before-rescore.jsonl")
     args = parser.parse_args(argv)
     from va_plugin.bench.scenes import gso
     from va_plugin.config import apply_override
@@ -198,6 +241,8 @@ def main(argv=None) -> int:
                 if line.strip():
                     row = json.loads(line)
                     done[row["key"]] = row
+        if args.rescore:
+            return rescore(args, done, rows_file)
         jobs = []
         for name in names:
             for views in counts:

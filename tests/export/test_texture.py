@@ -76,3 +76,15 @@ def test_a_dense_mesh_is_simplified_before_the_unwrap_and_still_bakes_its_colors
     assert np.median(error) < 0.01
     whole, _ = bake_texture(sphere, views, size=TEXTURE, max_faces=0)
     assert len(whole.faces) == len(sphere.faces)
+
+
+def test_without_the_fill_unseen_texels_take_the_padding_and_seen_ones_stay():
+    mesh = cube()
+    views = cube_views(mesh, [0.0, 90.0], [20.0, 20.0])  # two sides and the top: the rest unseen
+    filled, report = bake_texture(mesh, views, size=TEXTURE, fusion="mean")
+    padded, report_padded = bake_texture(mesh, views, size=TEXTURE, fusion="mean", fill_unseen=False)
+    assert report.seen == report_padded.seen < 0.8 * report.covered
+    covered, _ = texel_truth(filled)
+    seen = report.weight_maps.sum(0) > 0
+    np.testing.assert_array_equal(filled.image[seen], padded.image[seen])
+    assert np.abs(filled.image[covered & ~seen] - padded.image[covered & ~seen]).max() > 0.01

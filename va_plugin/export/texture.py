@@ -88,12 +88,15 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Fallback | None = None, progress: bool = False, atlas=None,
-                 harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES):
+                 harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES,
+                 fill_unseen: bool = True):
     """UV-unwrap ``mesh`` (simplified to ``max_faces`` first) and bake its texture from ``views``:
     ``(TexturedMesh, BakeReport)``. ``fallback``: the color of texels no view sees (None: the nearest seen
     surface's, :func:`~va_plugin.export.fill.fill_from_seen`). ``atlas``: the
     ``(vertices, faces, uv)`` of an earlier :func:`~va_plugin.export.atlas.unwrap` at this size, reused.
     ``harmonise_views``: level the views' colors before fusing (None: with robust fusion only).
+    ``fill_unseen=False``: texels no view sees get no color of their own; the padding around the charts
+    spreads the seen texels' colors over them in the atlas image (the benchmark's ground-truth textures).
     Raises VAError for a mesh without faces, a bad texture size, or a view that sees none of the mesh."""
     check_texture_size(size)
     check_texture_memory(size, len(views))
@@ -132,7 +135,7 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
         colors = apply_harmonisation(colors, weights, gains)
     seen = (weights > 0).any(1)
     fused, share = fuse(colors, weights, fusion)
-    if (~seen).any():
+    if (~seen).any() and fill_unseen:
         if fallback is None:
             fused = fill_from_seen(points, normals, fused, seen)
         else:
@@ -142,7 +145,8 @@ def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: 
     filled = np.zeros((size, size), bool)
     rows, cols = np.nonzero(covered)
     image[rows, cols] = fused
-    filled[rows, cols] = True
+    known = np.ones_like(seen) if fill_unseen else seen
+    filled[rows[known], cols[known]] = True
     image = dilate(image, filled)
     maps = np.zeros((len(views), size, size), np.float32)
     maps[:, rows, cols] = share.T

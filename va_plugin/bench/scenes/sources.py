@@ -128,13 +128,15 @@ class ImageSource(SceneSource):
     def baked_renderer(self, rig: Cameras) -> MeshRenderer:
         """The mesh with a texture baked from the rig renders (``rig``: their cameras; weighted mean of
         the views that see a texel): an estimate of the object's look from off the rig, faithful where the
-        rig sees the surface (the renders carry the only appearance there is)."""
+        rig sees the surface (the renders carry the only appearance there is). Texels the rig does not see
+        take the padding of the atlas (``fill_unseen=False``), so the targets stay those every benchmark
+        row was scored on, whatever the exported textures fill them with."""
         if self._baked is None:
 
             alpha = self.images[..., 3:]
             views = Views(rig, (self.images[..., :3] * alpha + (1.0 - alpha)).astype(np.float32))
             textured, _ = bake_texture(self.ground_truth, views, size=BAKED_TEXTURE_SIZE, fusion="mean",
-                                       max_faces=BAKED_MAX_FACES)
+                                       max_faces=BAKED_MAX_FACES, fill_unseen=False)
             self._baked = textured_renderer(textured)
         return self._baked
 
