@@ -32,3 +32,21 @@ def test_nothing_seen_or_nothing_unseen_changes_nothing():
     normals = np.tile(np.float32([0, 0, 1]), (5, 1))
     for seen in (np.zeros(5, bool), np.ones(5, bool)):
         np.testing.assert_array_equal(fill_from_seen(points, normals, colors, seen), colors)
+
+
+def test_the_fill_matches_a_brute_force_nearest_neighbour_reference():
+    rng = np.random.default_rng(3)
+    points = rng.normal(size=(600, 3)).astype(np.float32)
+    normals = points / np.linalg.norm(points, axis=1, keepdims=True)
+    colors = rng.random((600, 3)).astype(np.float32)
+    seen = points[:, 2] > -0.3  # the underside unseen, as on a rig above the object
+    out = fill_from_seen(points, normals, colors, seen)
+    known, unknown = np.nonzero(seen)[0], np.nonzero(~seen)[0]
+    distance = np.linalg.norm(points[unknown, None] - points[None, known], axis=-1).astype(np.float64)
+    nearest = np.argsort(distance, axis=1)[:, :8]
+    d = np.take_along_axis(distance, nearest, 1)
+    agree = np.einsum("mc,mkc->mk", normals[unknown], normals[known[nearest]])
+    w = np.clip(agree, NORMAL_FLOOR, 1.0) / np.maximum(d, 1e-6)
+    expected = np.einsum("mk,mkc->mc", w / w.sum(1, keepdims=True), colors[known[nearest]])
+    np.testing.assert_allclose(out[unknown], expected, rtol=1e-5, atol=1e-6)
+    np.testing.assert_array_equal(out[seen], colors[seen])

@@ -181,3 +181,19 @@ def test_double_backward_through_the_kernels_is_refused(ops):
     (grad,) = torch.autograd.grad(encoding(_points(50)).square().sum(), encoding.table, create_graph=True)
     with pytest.raises(RuntimeError):
         torch.autograd.grad(grad.sum(), encoding.table)
+
+
+def test_flush_denormals_reaches_every_thread_of_the_pool_and_switches_back(ops):
+    tiny = torch.full((1 << 20,), 1e-39)  # a denormal float32; a million of them split across the threads
+    previous = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        assert bool((tiny * 1.0 == tiny).all())  # IEEE: denormals survive arithmetic
+        assert hash_kernel.flush_denormals(True) is True
+        assert int(torch.count_nonzero(tiny * 1.0)) == 0  # every chunk, on either thread, reads them as zero
+        assert float(torch.tensor(1e-30) * torch.tensor(1e-10)) == 0.0  # and results below 1e-38 flush
+        assert float(torch.tensor(1e-20) * torch.tensor(1e-10)) == pytest.approx(1e-30)  # normal values do not
+    finally:
+        hash_kernel.flush_denormals(False)
+        torch.set_num_threads(previous)
+    assert bool((tiny * 1.0 == tiny).all())

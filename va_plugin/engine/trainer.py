@@ -25,6 +25,7 @@ from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.errors import CheckpointError, ConfigError, OutputError, VAError
+from va_plugin.fields.encodings.hash_kernel import flush_denormals
 from va_plugin.pipelines.base import PipelineConfig
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.files import DISK_FULL, NOT_WRITABLE, output_error, replace_atomic, write_atomic
@@ -283,6 +284,7 @@ class Trainer:
         self.device = pick_device(config.device)
         if self.device.type == "cpu":
             keep_freed_memory()  # no page faults for each step's temporaries; the same values
+            flush_denormals()  # values below 1e-38 count as zero: off the processor's slow path
         seed_everything(config.seed)
         self.run_dir = Path(config.output_dir)
         self.schedule_steps = schedule_steps_of(config)

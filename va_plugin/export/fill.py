@@ -21,7 +21,7 @@ def fill_from_seen(points: np.ndarray, normals: np.ndarray, colors: np.ndarray, 
     """``colors [m, 3]`` with every row where ``seen [m]`` is False replaced by the weighted mean color of
     its ``neighbours`` nearest seen points (``points, normals [m, 3]``, unit normals). Returns a new array;
     with nothing seen (or nothing unseen) the colors come back unchanged."""
-    from scipy.spatial import cKDTree
+    import open3d.core as o3c
 
     out = np.array(colors, dtype=np.float32, copy=True)
     seen = np.asarray(seen, bool)
@@ -30,9 +30,13 @@ def fill_from_seen(points: np.ndarray, normals: np.ndarray, colors: np.ndarray, 
     known = np.nonzero(seen)[0]
     unknown = np.nonzero(~seen)[0]
     k = int(min(max(neighbours, 1), len(known)))
-    distance, nearest = cKDTree(points[known]).query(points[unknown], k=k, workers=-1)
-    distance = np.asarray(distance, np.float64).reshape(len(unknown), k)
-    nearest = known[np.asarray(nearest).reshape(len(unknown), k)]
+    # open3d's search (threaded) rather than scipy's KD-tree: unseen texels lie far from the seen ones, where
+    # a KD-tree query visits many nodes; the neighbours are the same
+    search = o3c.nns.NearestNeighborSearch(o3c.Tensor(np.ascontiguousarray(points[known], np.float32)))
+    search.knn_index()
+    nearest, squared = search.knn_search(o3c.Tensor(np.ascontiguousarray(points[unknown], np.float32)), k)
+    distance = np.sqrt(np.maximum(squared.numpy().astype(np.float64), 0.0)).reshape(len(unknown), k)
+    nearest = known[nearest.numpy().astype(np.int64).reshape(len(unknown), k)]
     agree = np.einsum("mc,mkc->mk", normals[unknown], normals[nearest])
     weight = np.clip(agree, NORMAL_FLOOR, 1.0) / np.maximum(distance, 1e-6)
     weight /= np.maximum(weight.sum(1, keepdims=True), 1e-12)

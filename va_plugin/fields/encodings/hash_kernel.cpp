@@ -19,6 +19,11 @@
 #include <cstdint>
 #include <vector>
 
+#if defined(__x86_64__) || defined(__i386__)
+#include <immintrin.h>
+#define VA_HAS_MXCSR 1
+#endif
+
 namespace {
 
 constexpr int64_t kPointGrain = 512;  // points per parallel task
@@ -338,9 +343,28 @@ at::Tensor table_grad(const at::Tensor& x01, const at::Tensor& table, const c10:
   return out;
 }
 
+// Flush-to-zero and denormals-are-zero (MXCSR bits 15 and 6) on or off in the calling thread and in
+// every thread of torch's pool: a thread's floating-point mode is its own, so the caller's alone would
+// leave the pool's threads on the slow path for denormal values. False where the CPU has no MXCSR.
+bool flush_denormals(bool on) {
+#ifdef VA_HAS_MXCSR
+  constexpr unsigned kBits = 0x8040;
+  auto apply = [on]() {
+    const unsigned csr = _mm_getcsr();
+    _mm_setcsr(on ? (csr | kBits) : (csr & ~kBits));
+  };
+  apply();
+  at::parallel_for(0, at::get_num_threads(), 1, [&](int64_t, int64_t) { apply(); });
+  return true;
+#else
+  return false;
+#endif
+}
+
 }  // namespace
 
 TORCH_LIBRARY(va_hash_grid, m) {
+  m.def("flush_denormals(bool on) -> bool", &flush_denormals);
   m.def("encode(Tensor x01, Tensor table, Tensor resolutions, Tensor multipliers, Tensor offsets, int n_dense, "
         "int hashmap_size) -> Tensor");
   m.def("pullback(Tensor x01, Tensor table, Tensor g, Tensor resolutions, Tensor multipliers, Tensor offsets, "

@@ -93,6 +93,18 @@ def _build(verbose: bool):
         return None
 
 
+def flush_denormals(on: bool = True) -> bool:
+    """Treat float values below 1.2e-38 (denormals) as zero in every CPU operation of this process, in the
+    calling thread and in each thread of torch's pool (``on=False``: back to IEEE behaviour). Arithmetic on
+    denormals takes the processor's slow path: a softplus far from the surface, where exp(beta z)
+    underflows, runs several times slower without this. Without the kernels only the calling thread is
+    switched (``torch.set_flush_denormal``). Returns whether the processor supports it."""
+    ops = load_kernels()
+    if ops is not None:
+        return bool(ops.flush_denormals(on))
+    return bool(torch.set_flush_denormal(on))
+
+
 def wait_seconds() -> float:
     """How long a build waits for another process's build (``VA_PLUGIN_HASH_KERNEL_WAIT``, default 600 s)."""
     try:
