@@ -57,7 +57,6 @@ from va_plugin.export.mesh import MESH_FORMATS, extract_mesh, write_mesh
 from va_plugin.export.render import render_test_views, render_turntable
 from va_plugin.export.texture import check_texture_size, texture_run_mesh
 from va_plugin.export.writing import check_texture_output
-from va_plugin.fields.encodings.hash_kernel import flush_denormals
 from va_plugin.pipelines.base import Pipeline
 from va_plugin.registry import discover_methods
 from va_plugin.utils.device import pick_device
@@ -293,8 +292,6 @@ def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRu
                               "from a checkpoint before the divergence)")
     config = copy.deepcopy(config)
     torch_device = pick_device(device if device is not None else "auto")
-    if torch_device.type == "cpu":
-        flush_denormals()  # as in training: the mesh, bake and renders query the field off the slow path
     pipeline = config.pipeline.setup(device=torch_device, schedule_steps=schedule_steps_of(config))
     try:
         pipeline.model.load_state_dict(state["model"])

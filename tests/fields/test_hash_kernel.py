@@ -197,3 +197,12 @@ def test_flush_denormals_reaches_every_thread_of_the_pool_and_switches_back(ops)
         hash_kernel.flush_denormals(False)
         torch.set_num_threads(previous)
     assert bool((tiny * 1.0 == tiny).all())
+
+
+def test_denormals_flushed_holds_for_the_block_only(ops):
+    tiny = torch.full((1 << 16,), 1e-39)
+    with hash_kernel.denormals_flushed():
+        assert int(torch.count_nonzero(tiny * 1.0)) == 0
+    assert bool((tiny * 1.0 == tiny).all())  # off after the block: scipy and the rest see IEEE floats
+    with hash_kernel.denormals_flushed(False):
+        assert bool((tiny * 1.0 == tiny).all())

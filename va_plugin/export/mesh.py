@@ -11,6 +11,7 @@ import trimesh
 
 from va_plugin.errors import VAError
 from va_plugin.export.frame import check_frame, frame_applies, frame_transform, write_frame_record
+from va_plugin.fields.encodings.hash_kernel import denormals_flushed
 
 MESH_FORMATS = (".ply", ".obj", ".glb")
 
@@ -20,9 +21,10 @@ def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: 
     """``fn`` on a ``resolution^3`` grid over [-bound, bound]^3, as ``[R, R, R]`` (x, y, z order)."""
     axis = torch.linspace(-bound, bound, resolution, device=device)
     values = []
-    for xs in torch.split(axis, max(1, chunk // (resolution * resolution))):
-        grid = torch.stack(torch.meshgrid(xs, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-        values.append(fn(grid).reshape(len(xs), resolution, resolution).float().cpu())
+    with denormals_flushed(axis.device.type == "cpu"):  # far from the surface the field underflows
+        for xs in torch.split(axis, max(1, chunk // (resolution * resolution))):
+            grid = torch.stack(torch.meshgrid(xs, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+            values.append(fn(grid).reshape(len(xs), resolution, resolution).float().cpu())
     return torch.cat(values).numpy()
 
 

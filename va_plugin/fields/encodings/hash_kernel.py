@@ -97,12 +97,28 @@ def flush_denormals(on: bool = True) -> bool:
     """Treat float values below 1.2e-38 (denormals) as zero in every CPU operation of this process, in the
     calling thread and in each thread of torch's pool (``on=False``: back to IEEE behaviour). Arithmetic on
     denormals takes the processor's slow path: a softplus far from the surface, where exp(beta z)
-    underflows, runs several times slower without this. Without the kernels only the calling thread is
+    underflows, runs several times slower without this. Process-wide until switched off: use
+    :func:`denormals_flushed` around the work instead. Without the kernels only the calling thread is
     switched (``torch.set_flush_denormal``). Returns whether the processor supports it."""
     ops = load_kernels()
     if ops is not None:
         return bool(ops.flush_denormals(on))
     return bool(torch.set_flush_denormal(on))
+
+
+@contextmanager
+def denormals_flushed(enabled: bool = True) -> Iterator[None]:
+    """Within the block, :func:`flush_denormals` is on; after it, off again (IEEE behaviour), so that code
+    outside it runs as it expects (scipy's KD-tree crashes on some inputs with denormals flushed).
+    ``enabled=False``: nothing changes (GPU work)."""
+    if not enabled:
+        yield
+        return
+    flush_denormals(True)
+    try:
+        yield
+    finally:
+        flush_denormals(False)
 
 
 def wait_seconds() -> float:
