@@ -53,10 +53,8 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
     """Train the default on one scene (one torch thread), then evaluate its final state."""
     import torch
 
-    from va_plugin.api import load_run
     from va_plugin.config import apply_override
     from va_plugin.engine.trainer import train_run
-    from va_plugin.eval.evaluate import evaluate_run
     from va_plugin.registry import get_method
 
     torch.set_num_threads(1)
@@ -70,19 +68,15 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
         apply_override(config, override)
     started = time.perf_counter()
     train_run(config, resume=True)
-    pipeline, state = load_run(Path(job["run_dir"]), device="cpu").parts()
-    result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
+    scores, state = score(job["run_dir"])
     wall = time.perf_counter() - started
     return {**{k: job[k] for k in ("key", "object", "views", "level")},
-            "variant": job.get("variant", ""), "cd": result["cd"], "iou": result["iou"],
-            "psnr": result["psnr"], "ssim": result["ssim"], "lpips": result.get("lpips"),
-            "test_views": result["image_params"]["views"], "steps": int(state["step"]),
+            "variant": job.get("variant", ""), **scores, "steps": int(state["step"]),
             "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}
 
 
-def rescore_one(row: dict[str, Any], run_dir: str) -> dict[str, Any]:
-    """The row with its scores evaluated again on the run's final state (its scene as it is now); its
-    seconds stay those of the run."""
+def score(run_dir: str) -> tuple[dict[str, Any], dict[str, Any]]:
+    """The scores of a run's final state on its scene (one torch thread), and the checkpoint's state."""
     import torch
 
     from va_plugin.api import load_run
@@ -91,8 +85,14 @@ def rescore_one(row: dict[str, Any], run_dir: str) -> dict[str, Any]:
     torch.set_num_threads(1)
     pipeline, state = load_run(Path(run_dir), device="cpu").parts()
     result = evaluate_run(pipeline, state, None, 128, 1.0, None, 100_000, progress=False)
-    return {**row, "cd": result["cd"], "iou": result["iou"], "psnr": result["psnr"], "ssim": result["ssim"],
-            "lpips": result.get("lpips")}
+    return {"cd": result["cd"], "iou": result["iou"], "psnr": result["psnr"], "ssim": result["ssim"],
+            "lpips": result.get("lpips"), "test_views": result["image_params"]["views"]}, state
+
+
+def rescore_one(row: dict[str, Any], run_dir: str) -> dict[str, Any]:
+    """The row with its scores evaluated again on the run's final state (its scene as it is now); its
+    seconds stay those of the run."""
+    return {**row, **score(run_dir)[0]}
 
 
 def texture_fidelity(scene: Path) -> float:
@@ -185,15 +185,22 @@ def rescore(args: argparse.Namespace, done: dict[str, dict[str, Any]], rows_file
     every finished run scored on it."""
     import shutil
 
+    from va_plugin.utils.files import write_atomic
+
     scenes = args.out / "scenes"
-    for scene in sorted(scenes.iterdir()) if scenes.is_dir() else []:
+    staging = args.out / "scenes.rebuild"
+    shutil.rmtree(staging, ignore_errors=True)
+    train_views = lambda scene: {p.name: p.read_bytes() for p in (scene / "images").glob("train_*")}
+    for scene in sorted(p for p in scenes.iterdir() if p.is_dir()) if scenes.is_dir() else []:
         name, level, views = scene.name.rsplit("-", 2)
-        before = {p.name: p.read_bytes() for p in (scene / "images").glob("train_*")}
-        shutil.rmtree(scene)
-        build(scenes, args.data_root, name, int(views[1:]), int(level[1:]))
-        after = {p.name: p.read_bytes() for p in (scene / "images").glob("train_*")}
-        if before != after:
+        rebuilt = build(staging, args.data_root, name, int(views[1:]), int(level[1:]))
+        if train_views(rebuilt) != train_views(scene):  # the old scene stays, the runs stay scorable
+            shutil.rmtree(staging)
             sys.exit(f"error: the training views of {scene} changed when rebuilt; retrain instead of rescoring")
+    for rebuilt in sorted(staging.iterdir()) if staging.is_dir() else []:
+        shutil.rmtree(scenes / rebuilt.name)
+        rebuilt.rename(scenes / rebuilt.name)
+    shutil.rmtree(staging, ignore_errors=True)
     shutil.copy(rows_file, args.out / "rows.before-rescore.jsonl")
     rows = [r for r in done.values() if (args.out / "runs" / r["key"]).is_dir()]
     with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool:
@@ -201,7 +208,7 @@ def rescore(args: argparse.Namespace, done: dict[str, dict[str, Any]], rows_file
     for row in new:
         done[row["key"]] = row
         print(json.dumps(row), file=sys.stderr)
-    rows_file.write_text("".join(json.dumps(r) + "\n" for r in done.values()))
+    write_atomic(rows_file, "".join(json.dumps(r) + "\n" for r in done.values()))
     return 0
 
 
