@@ -85,3 +85,27 @@ def test_syncdreamer_rig_camera_zero_position():
         assert torch.allclose(uv, torch.tensor([[128.0, 128.0]]), atol=1e-3)
         assert float(depth) == pytest.approx(1.5, abs=1e-4)
     assert math.isclose(float(rig.fx[0]), 280.0)
+
+
+@pytest.mark.parametrize("camera_type", ["perspective", ORTHOGRAPHIC])
+def test_rays_of_one_view_equal_the_per_ray_path(camera_type):
+    # a tilted camera away from the origin: every column of the rotation matters
+    c2w = look_at(torch.tensor([[1.2, -0.7, 2.1], [-0.5, 1.5, 0.4]]), torch.zeros(2, 3), torch.tensor([0.0, 0.0, 1.0]))
+    cam = Cameras(c2w, 90.0, 110.0, 31.0, 25.0, 64, 48, camera_type=camera_type)
+    g = torch.Generator().manual_seed(0)
+    rows, cols = torch.rand(500, generator=g) * 48, torch.rand(500, generator=g) * 64
+    one = cam.generate_rays(1, rows, cols)
+    per_ray = cam.generate_rays(torch.ones(500, dtype=torch.long), rows, cols)
+    for a, b in zip(one, per_ray):
+        assert a.shape == b.shape == (500, 3) and a.is_contiguous()
+        assert torch.equal(a, b)
+    # against the rotation applied as a matrix to the camera-frame offsets (x, y, 1) or (x, y, 0)
+    x, y = (cols + 0.5 - 31.0) / 90.0, (rows + 0.5 - 25.0) / 110.0
+    local = torch.stack([x, y, torch.ones_like(x) if camera_type == "perspective" else torch.zeros_like(x)], -1)
+    turned = local @ c2w[1, :, :3].T
+    if camera_type == "perspective":
+        assert torch.allclose(one[1], turned / turned.norm(dim=-1, keepdim=True), atol=1e-6)
+        assert torch.allclose(one[0], c2w[1, :, 3].expand(500, 3))
+    else:
+        assert torch.allclose(one[0], c2w[1, :, 3] + turned, atol=1e-6)
+        assert torch.allclose(one[1], c2w[1, :, 2].expand(500, 3))

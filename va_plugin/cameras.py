@@ -16,6 +16,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
 import torch
 
 from va_plugin.errors import DataError
@@ -95,21 +96,29 @@ class Cameras:
         return Cameras(self.c2w, self.fx * sx, self.fy * sy, self.cx * sx, self.cy * sy, width, height,
                        self.camera_type, self.pixel_offset)
 
-    def generate_rays(self, camera_indices: torch.Tensor, rows: torch.Tensor, cols: torch.Tensor
+    def generate_rays(self, camera_indices: torch.Tensor | int, rows: torch.Tensor, cols: torch.Tensor
                       ) -> tuple[torch.Tensor, torch.Tensor]:
         """World origins ``[n_rays, 3]`` and unit directions ``[n_rays, 3]`` of the rays through pixels
-        ``rows, cols`` ``[n_rays]`` (float allowed) of the views ``camera_indices`` ``[n_rays]``."""
-        c2w = self.c2w[camera_indices]
-        x = (cols.float() + self.pixel_offset - self.cx[camera_indices]) / self.fx[camera_indices]
-        y = (rows.float() + self.pixel_offset - self.cy[camera_indices]) / self.fy[camera_indices]
-        rotation, position = c2w[:, :, :3], c2w[:, :, 3]
+        ``rows, cols`` ``[n_rays]`` (float allowed) of the views ``camera_indices`` ``[n_rays]``, or of the
+        one view ``camera_indices`` when it is an int (no per-ray copy of the pose)."""
+        if isinstance(camera_indices, (int, np.integer)):
+            index = int(camera_indices)
+            c2w = self.c2w[index][None]
+            fx, fy, cx, cy = self.fx[index], self.fy[index], self.cx[index], self.cy[index]
+        else:
+            c2w = self.c2w[camera_indices]
+            fx, fy = self.fx[camera_indices], self.fy[camera_indices]
+            cx, cy = self.cx[camera_indices], self.cy[camera_indices]
+        x = ((cols.float() + self.pixel_offset - cx) / fx)[:, None]
+        y = ((rows.float() + self.pixel_offset - cy) / fy)[:, None]
+        shape = (x.shape[0], 3)
+        # the rotation's columns times the camera-frame offset (x, y, 1) or (x, y, 0), summed in that order
+        across = c2w[:, :, 0] * x + c2w[:, :, 1] * y
+        position = c2w[:, :, 3]
         if self.camera_type == PERSPECTIVE:
-            local = torch.stack([x, y, torch.ones_like(x)], dim=-1)
-            directions = torch.nn.functional.normalize(torch.einsum("nij,nj->ni", rotation, local), dim=-1)
-            return position, directions
-        offset = torch.stack([x, y, torch.zeros_like(x)], dim=-1)
-        origins = position + torch.einsum("nij,nj->ni", rotation, offset)
-        return origins, rotation[:, :, 2].contiguous()
+            directions = torch.nn.functional.normalize(across + c2w[:, :, 2], dim=-1)
+            return position.expand(shape).contiguous(), directions
+        return position + across, c2w[:, :, 2].expand(shape).contiguous()
 
     def pixel_grid(self, camera_index: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
         """Camera indices, rows and columns of every pixel of one view, row-major ``[H*W]``."""

@@ -22,6 +22,8 @@ from va_plugin.cameras import Cameras
 # A fixed world-space light makes shading view-independent, so clean renders are multi-view consistent.
 LIGHT_DIRECTION = np.array([0.3, 0.4, 0.85]) / np.linalg.norm([0.3, 0.4, 0.85])
 AMBIENT = 0.45
+CAST_BATCH = 1 << 20
+"""Rays :meth:`MeshRenderer.render` casts at once at most (its supersampled copies of a view, grouped)."""
 
 
 @dataclass
@@ -115,23 +117,33 @@ class MeshRenderer:
                    ) -> tuple[np.ndarray, np.ndarray]:
         """World rays ``[H*W, 3]`` through every pixel of view ``index``, shifted by ``(dy, dx)`` pixels."""
         _, rows, cols = cameras.pixel_grid(index)
-        idx = torch.full_like(rows, index)
-        origins, directions = cameras.generate_rays(idx, rows.float() + dy, cols.float() + dx)
+        origins, directions = cameras.generate_rays(index, rows.float() + dy, cols.float() + dx)
         return origins.numpy(), directions.numpy()
 
     def render(self, cameras: Cameras, index: int, supersample: int = 2) -> np.ndarray:
         """RGBA float32 ``[H, W, 4]`` of one view (straight alpha), averaged over ``supersample^2`` rays."""
         height, width = cameras.height, cameras.width
+        pixels = height * width
         offsets = (np.arange(supersample) + 0.5) / supersample - 0.5
-        rgb_sum = np.zeros((height * width, 3), np.float32)
-        hits = np.zeros((height * width, 1), np.float32)
-        for dy in offsets:
-            for dx in offsets:
-                t, faces, bary = self.cast(*self.pixel_rays(cameras, index, dy, dx))
-                hit = np.isfinite(t)
-                if hit.any():
-                    rgb_sum[hit] += self.shade(faces[hit], bary[hit])
-                    hits[hit] += 1.0
+        shifts = [(dy, dx) for dy in offsets for dx in offsets]
+        _, rows, cols = cameras.pixel_grid(index)
+        rows, cols = rows.float(), cols.float()
+        rgb_sum = np.zeros((pixels, 3), np.float32)
+        hits = np.zeros((pixels, 1), np.float32)
+        group = max(1, CAST_BATCH // max(pixels, 1))  # shifted copies of the view cast together
+        for start in range(0, len(shifts), group):
+            part = shifts[start:start + group]
+            dy = torch.tensor([d for d, _ in part], dtype=torch.float32)[:, None]
+            dx = torch.tensor([d for _, d in part], dtype=torch.float32)[:, None]
+            origins, directions = cameras.generate_rays(index, (rows + dy).reshape(-1), (cols + dx).reshape(-1))
+            t, faces, bary = self.cast(origins.numpy(), directions.numpy())
+            hit = np.isfinite(t)
+            rgb = np.zeros((len(t), 3), np.float32)
+            if hit.any():
+                rgb[hit] = self.shade(faces[hit], bary[hit])
+            for k in range(len(part)):  # in the order of the shifts, as one cast each would add them
+                rgb_sum += rgb[k * pixels:(k + 1) * pixels]
+                hits[:, 0] += hit[k * pixels:(k + 1) * pixels]
         alpha = hits / supersample**2
         rgb = np.where(hits > 0, rgb_sum / np.maximum(hits, 1.0), 0.0)
         return np.concatenate([rgb, alpha], -1).reshape(height, width, 4).astype(np.float32)

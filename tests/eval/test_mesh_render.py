@@ -44,3 +44,28 @@ def test_a_bad_number_of_rays_is_refused_with_the_options_name(value):
 
 def test_good_numbers_of_rays_pass():
     assert [check_supersample(v) for v in (1, 2, MAX_SUPERSAMPLE, np.int64(3))] == [1, 2, MAX_SUPERSAMPLE, 3]
+
+
+@pytest.mark.parametrize("batch", [1, RES * RES * 3, 1 << 20])
+def test_supersampled_rays_cast_together_give_the_average_of_each_shift(monkeypatch, batch):
+    # one shifted copy a cast, three a cast (a last group of one), or all nine in one cast
+    import va_plugin.raycast as raycast
+
+    monkeypatch.setattr(raycast, "CAST_BATCH", batch)
+    mesh = trimesh.creation.icosphere(subdivisions=2, radius=0.4)
+    renderer = UnlitMeshRenderer(mesh, lambda hits: np.clip(hits.points + 0.5, 0.0, 1.0).astype(np.float32))
+    cameras = orbit_cameras([30.0], [20.0], resolution=RES, pixel_offset=0.5)
+    offsets = (np.arange(3) + 0.5) / 3 - 0.5
+    rgb_sum, hits = np.zeros((RES * RES, 3)), np.zeros(RES * RES)
+    for dy in offsets:  # the reference: one cast per shift
+        for dx in offsets:
+            t, faces, bary = renderer.cast(*renderer.pixel_rays(cameras, 0, dy, dx))
+            hit = np.isfinite(t)
+            rgb_sum[hit] += renderer.shade(faces[hit], bary[hit])
+            hits += hit
+    image = renderer.render(cameras, 0, supersample=3).reshape(-1, 4)
+    np.testing.assert_allclose(image[:, 3], hits / 9, atol=1e-7)
+    seen = hits > 0
+    assert 0 < seen.sum() < RES * RES
+    np.testing.assert_allclose(image[seen, :3], rgb_sum[seen] / hits[seen, None], atol=1e-6)
+    assert np.all(image[~seen, :3] == 0)

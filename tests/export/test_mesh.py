@@ -77,3 +77,71 @@ def test_ngp_log_density_smoothing_hand_values_and_mesh():
         mesh = extract_mesh(_DensityBall(smoothing=smoothing), resolution=48, with_color=False)
         radius = np.linalg.norm(np.asarray(mesh.vertices), axis=-1)
         assert abs(float(radius.mean()) - 0.4) < 0.015, smoothing
+
+
+def _sdf_scene(points):
+    """A sphere (r 0.35 at x = -0.3), a plate 0.04 thick (thinner than three cells of a 48^3 grid) and a
+    box reaching out of the unit sphere: what the banded grid must keep."""
+    ball = (points - torch.tensor([-0.3, 0.0, 0.0])).norm(dim=-1) - 0.35
+    q = (points - torch.tensor([0.35, 0.1, 0.0])).abs() - torch.tensor([0.25, 0.02, 0.3])
+    plate = q.clamp_min(0).norm(dim=-1) + q.max(-1).values.clamp_max(0)
+    q = (points - torch.tensor([0.0, -0.75, 0.0])).abs() - torch.tensor([0.2, 0.5, 0.2])
+    box = q.clamp_min(0).norm(dim=-1) + q.max(-1).values.clamp_max(0)
+    return torch.minimum(torch.minimum(ball, plate), box)
+
+
+@pytest.mark.parametrize("resolution", [48, 61])
+def test_the_banded_distance_grid_gives_the_full_grids_mesh(resolution):
+    from skimage.measure import marching_cubes
+
+    from va_plugin.export.mesh import sample_distance_grid, sample_grid
+
+    evaluated = []
+
+    def fn(points):
+        evaluated.append(len(points))
+        return _sdf_scene(points)
+
+    cpu = torch.device("cpu")
+    full = sample_grid(_sdf_scene, resolution, 1.0, cpu)
+    band = sample_distance_grid(fn, resolution, 1.0, 1.0, cpu, lipschitz=1.5)
+    assert sum(evaluated) < 0.6 * resolution**3  # most of the grid is skipped
+    sphere = sphere_distance_grid(resolution, 1.0, 1.0)
+    a, b = np.maximum(full, sphere), np.maximum(band, sphere)  # as extract_mesh sees them
+    assert np.array_equal(a < 0, b < 0)  # every sign kept
+    # every value marching cubes reads (the corners of cells where the sign changes) is the field's own
+    mixed = np.zeros_like(a, bool)
+    for i in (0, 1):
+        for j in (0, 1):
+            for k in (0, 1):
+                cell = a[i:resolution - 1 + i, j:resolution - 1 + j, k:resolution - 1 + k] < 0
+                mixed[:-1, :-1, :-1] |= cell
+    inside = np.minimum.reduce([a[i:resolution - 1 + i, j:resolution - 1 + j, k:resolution - 1 + k] < 0
+                                for i in (0, 1) for j in (0, 1) for k in (0, 1)])
+    crossing = mixed[:-1, :-1, :-1] & ~inside
+    corners = np.zeros_like(a, bool)
+    for i in (0, 1):
+        for j in (0, 1):
+            for k in (0, 1):
+                corners[i:resolution - 1 + i, j:resolution - 1 + j, k:resolution - 1 + k] |= crossing
+    assert corners.sum() > 100
+    np.testing.assert_allclose(a[corners], b[corners], rtol=0, atol=1e-6)  # batches round differently
+    va, fa, _, _ = marching_cubes(a, 0.0)
+    vb, fb, _, _ = marching_cubes(b, 0.0)
+    assert np.array_equal(fa, fb)
+    np.testing.assert_allclose(va, vb, rtol=0, atol=1e-4)
+
+
+def test_the_bound_is_what_keeps_a_ball_between_block_corners():
+    # a ball smaller than a block, around the grid point at a block's centre: only the fine pass finds it,
+    # and it runs there only when the claimed bound lets the ball's field dip below zero between corners
+    from va_plugin.export.mesh import BLOCK, sample_distance_grid, sample_grid
+
+    cpu = torch.device("cpu")
+    n = 49
+    centre = -1.0 + (12 * BLOCK + BLOCK // 2) * 2.0 / (n - 1)
+    ball = lambda p: (p - centre).norm(dim=-1) - 0.03
+    full = sample_grid(ball, n, 1.0, cpu)
+    assert (full < 0).sum() == 1
+    assert np.array_equal(sample_distance_grid(ball, n, 1.0, 1.0, cpu, lipschitz=1.0) < 0, full < 0)
+    assert not (sample_distance_grid(ball, n, 1.0, 1.0, cpu, lipschitz=0.1) < 0).any()  # a false bound loses it

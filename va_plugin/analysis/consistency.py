@@ -87,7 +87,7 @@ def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: floa
         if inside.numel() > max_pixels:
             inside = inside[torch.linspace(0, inside.numel() - 1, max_pixels).round().long()]
         rows, cols = inside // width, inside % width
-        origins, directions = cameras.generate_rays(torch.full_like(rows, view), rows.float(), cols.float())
+        origins, directions = cameras.generate_rays(view, rows.float(), cols.float())
         nears, fars, _ = near_far_from_sphere(origins, directions, scene_radius)
         t = torch.linspace(0.0, 1.0, samples)[None, :]
         depths = nears + (fars - nears) * t  # [m, s]

@@ -40,7 +40,7 @@ def check_object_in_bound(outputs: DataparserOutputs) -> None:
             continue
         stride = max(1, rows.numel() // MAX_CHECKED_PIXELS)
         rows, cols = rows[::stride], cols[::stride]
-        origins, directions = cameras.generate_rays(torch.full_like(rows, view), rows, cols)
+        origins, directions = cameras.generate_rays(view, rows, cols)
         _, _, hits = near_far_from_sphere(origins, directions, radius)
         outside = 1.0 - float(hits.float().mean())
         if outside > MAX_OUTSIDE_FRACTION:

@@ -134,18 +134,21 @@ def _fit_channel(samples, n: int, keep: list[int], ridge: float, rounds: int) ->
     of views of :func:`harmonise` (float64 arrays of the texels both see well)."""
     gains = np.ones(n)
     robust = [np.ones(len(w)) for _, _, w, _, _ in samples]
+    products = [(ck * ck, cl * cl, ck * cl) for _, _, _, ck, cl in samples]  # the same in every round
     held = [i for i in range(n) if i not in keep]
-    for _ in range(rounds + 1):
+    for round_ in range(rounds + 1):
         normal = np.zeros((n, n))
-        for (k, l, w, ck, cl), r in zip(samples, robust):
+        for (k, l, w, _, _), (kk, ll, kl), r in zip(samples, products, robust):
             wr = w * r
-            normal[k, k] += float(np.dot(wr, ck * ck))
-            normal[l, l] += float(np.dot(wr, cl * cl))
-            normal[k, l] -= float(np.dot(wr, ck * cl))
+            normal[k, k] += float(np.dot(wr, kk))
+            normal[l, l] += float(np.dot(wr, ll))
+            normal[k, l] -= float(np.dot(wr, kl))
             normal[l, k] = normal[k, l]
         normal[np.arange(n), np.arange(n)] += ridge
         rhs = np.full(n, ridge) - normal[:, held].sum(1)  # ridge towards 1; the held views' gains are 1
         gains[keep] = np.linalg.solve(normal[np.ix_(keep, keep)], rhs[keep])
+        if round_ == rounds:
+            break  # the last round's weights would go unused
         residuals = [gains[k] * ck - gains[l] * cl for k, l, _, ck, cl in samples]
         flat = np.abs(np.concatenate(residuals))
         # the median from a strided subsample: the scale of the Cauchy weights needs no more precision
@@ -156,5 +159,7 @@ def _fit_channel(samples, n: int, keep: list[int], ridge: float, rounds: int) ->
 
 def apply_harmonisation(colors: np.ndarray, weights: np.ndarray, gains: np.ndarray) -> np.ndarray:
     """``colors [m, n, 3]`` with each view's gains applied where it sees the point (clipped to [0, 1])."""
-    out = np.clip(colors * gains[None], 0.0, 1.0).astype(np.float32)
-    return np.where((weights > 0)[..., None], out, colors)
+    out = np.multiply(colors, gains[None].astype(np.float32), dtype=np.float32)
+    np.clip(out, 0.0, 1.0, out=out)
+    np.copyto(out, colors, where=(weights <= 0)[..., None])
+    return out

@@ -20,18 +20,83 @@ MESH_FORMATS = (".ply", ".obj", ".glb")
 def sample_grid(fn, resolution: int, bound: float, device: torch.device, chunk: int = 65536) -> np.ndarray:
     """``fn`` on a ``resolution^3`` grid over [-bound, bound]^3, as ``[R, R, R]`` (x, y, z order)."""
     axis = torch.linspace(-bound, bound, resolution, device=device)
+    return _sample_axes(fn, axis[:, None].expand(-1, 1), axis, chunk)
+
+
+def _sample_axes(fn, xs: torch.Tensor, axis: torch.Tensor, chunk: int) -> np.ndarray:
+    """``fn`` on the grid ``xs x axis x axis`` (``xs [n, 1]``), as ``[n, len(axis), len(axis)]``."""
     values = []
+    side = len(axis)
     with denormals_flushed(axis.device.type == "cpu"):  # far from the surface the field underflows
-        for xs in torch.split(axis, max(1, chunk // (resolution * resolution))):
-            grid = torch.stack(torch.meshgrid(xs, axis, axis, indexing="ij"), -1).reshape(-1, 3)
-            values.append(fn(grid).reshape(len(xs), resolution, resolution).float().cpu())
+        for part in torch.split(xs[:, 0], max(1, chunk // (side * side))):
+            grid = torch.stack(torch.meshgrid(part, axis, axis, indexing="ij"), -1).reshape(-1, 3)
+            values.append(fn(grid).reshape(len(part), side, side).float().cpu())
     return torch.cat(values).numpy()
+
+
+BLOCK = 2
+"""Cells per side of the blocks in which :func:`sample_distance_grid` skips the field."""
+
+
+@torch.no_grad()
+def sample_distance_grid(fn, resolution: int, bound: float, radius: float, device: torch.device,
+                         lipschitz: float, chunk: int = 65536) -> np.ndarray:
+    """The grid of :func:`sample_grid` for a signed distance ``fn`` whose gradient norm stays below
+    ``lipschitz``, evaluating ``fn`` only where a surface may pass: first at the corners of blocks of
+    ``BLOCK^3`` cells, then at every point of the blocks whose corner values, widened by ``lipschitz``
+    times the distance to the nearest corner, do not rule out a sign change, and that lie not wholly
+    outside the sphere of ``radius`` (which :func:`extract_mesh` counts as empty). Elsewhere the grid
+    holds a value of the right sign (the bound nearest zero), so marching cubes, which reads the values
+    only in cells where the sign changes, sees the same grid."""
+    n = resolution
+    spacing = 2.0 * bound / (n - 1)
+    corners = np.unique(np.r_[np.arange(0, n, BLOCK), n - 1])  # fine indices of the block corners
+    axis = torch.linspace(-bound, bound, n, device=device)
+    coarse = _sample_axes(fn, axis[corners][:, None], axis[corners], chunk)  # [k, k, k]
+    k = len(corners)
+    # per block: the corner values' range, widened by lipschitz x (half the block diagonal)
+    shifted = [coarse[i:k - 1 + i, j:k - 1 + j, l:k - 1 + l] for i in (0, 1) for j in (0, 1) for l in (0, 1)]
+    low, high = np.minimum.reduce(shifted), np.maximum.reduce(shifted)
+    half = 0.5 * np.diff(corners) * spacing  # [k - 1] half the block's side, per axis
+    reach = lipschitz * np.sqrt(half[:, None, None] ** 2 + half[None, :, None] ** 2 + half[None, None, :] ** 2)
+    low, high = low - reach, high + reach
+    # the blocks' nearest and farthest distances from the centre against the sphere
+    lo = np.linspace(-bound, bound, n)[corners[:-1]]
+    hi = np.linspace(-bound, bound, n)[corners[1:]]
+    near_axis = np.where(lo > 0, lo, np.where(hi < 0, -hi, 0.0))
+    far_axis = np.maximum(np.abs(lo), np.abs(hi))
+    nearest = np.sqrt(near_axis[:, None, None] ** 2 + near_axis[None, :, None] ** 2 + near_axis[None, None, :] ** 2)
+    farthest = np.sqrt(far_axis[:, None, None] ** 2 + far_axis[None, :, None] ** 2 + far_axis[None, None, :] ** 2)
+    inside = (high < 0) & (farthest < radius)  # every point inside the object and the sphere
+    empty = (low > 0) | (nearest > radius)  # every point outside one of them
+    crossing = ~inside & ~empty
+    # each grid index lies in one block, or two where it is a block corner: a point is evaluated when
+    # any block it belongs to may hold a crossing
+    index = np.arange(n)
+    first = np.clip(np.searchsorted(corners, index, side="right") - 1, 0, k - 2)
+    second = np.where(np.isin(index, corners) & (index > 0), np.clip(first - 1, 0, k - 2), first)
+    second = np.where(index == n - 1, k - 2, second)
+    first = np.where(index == n - 1, k - 2, first)
+    wanted = np.zeros((n, n, n), bool)
+    for bx in (first, second):
+        for by in (first, second):
+            for bz in (first, second):
+                wanted |= crossing[np.ix_(bx, by, bz)]
+    values = np.where(inside, high, np.where(low > 0, low, np.float32(spacing)))[np.ix_(first, first, first)]
+    values = values.astype(np.float32)
+    points = torch.from_numpy(np.argwhere(wanted)).to(device)
+    if len(points):
+        with denormals_flushed(axis.device.type == "cpu"):
+            found = torch.cat([fn(axis[part]).float().cpu() for part in torch.split(points, chunk)])
+        values[wanted] = found.numpy()
+    return values
 
 
 def extract_mesh(model, resolution: int = 128, bound: float | None = None, with_color: bool = True,
                  largest_component: bool = False) -> trimesh.Trimesh:
-    """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound,
-    after the model's ``prepare_mesh_grid(values, spacing)`` and ``fill_mesh_cavities`` (``Model``'s defaults:
+    """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound (a
+    signed distance, ``model.mesh_field_lipschitz`` set, is evaluated only near its zero crossings), after
+    the model's ``prepare_mesh_grid(values, spacing)`` and ``fill_mesh_cavities`` (``Model``'s defaults:
     unchanged, not filled).
     Raises VAError when the field has no surface inside the bound."""
     from skimage.measure import marching_cubes
@@ -43,7 +108,9 @@ def extract_mesh(model, resolution: int = 128, bound: float | None = None, with_
     was_training = model.training
     model.eval()
     try:
-        values = sample_grid(model.mesh_field, resolution, bound, device)
+        lipschitz = getattr(model, "mesh_field_lipschitz", None)
+        values = sample_grid(model.mesh_field, resolution, bound, device) if lipschitz is None else \
+            sample_distance_grid(model.mesh_field, resolution, bound, radius, device, lipschitz)
     finally:
         model.train(was_training)
     if not np.isfinite(values).all():

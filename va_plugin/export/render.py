@@ -28,7 +28,7 @@ def render_view(model, cameras: Cameras, index: int, as_view: int = -1, keys=Non
     of those images ``[H, W, C]`` from the same render pass."""
     cameras = cameras.to(next(model.parameters()).device)
     views, rows, cols = cameras.pixel_grid(index)
-    origins, directions = cameras.generate_rays(views, rows, cols)
+    origins, directions = cameras.generate_rays(index, rows, cols)
     rays = RayBundle(origins, directions, torch.full_like(views, as_view))
     wanted = ("rgb",) if keys is None else tuple(keys)
     outputs = model.render_rays(rays, keys=wanted)

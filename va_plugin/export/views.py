@@ -65,8 +65,7 @@ def rays_through(cameras: Cameras, index: int, points: np.ndarray):
     distance along them ``[m]`` and their pixel coordinates ``[m, 2]`` (column, row)."""
     pts = torch.as_tensor(points, dtype=torch.float32)
     uv, _ = cameras.project(pts, index)
-    idx = torch.full((len(pts),), index, dtype=torch.long)
-    origins, directions = cameras.generate_rays(idx, uv[:, 1], uv[:, 0])
+    origins, directions = cameras.generate_rays(index, uv[:, 1], uv[:, 0])
     distance = ((pts - origins) * directions).sum(-1)
     return origins.numpy(), directions.numpy(), distance.numpy(), uv.numpy()
 
@@ -75,7 +74,7 @@ def silhouette_distance(scene, cameras: Cameras, index: int, mask: np.ndarray | 
     """Distance in pixels ``[H, W]`` to the nearest pixel outside the object in view ``index`` (0 outside);
     the object is where the mesh is hit and, when given, ``mask`` is set."""
     _, rows, cols = cameras.pixel_grid(index)
-    origins, directions = cameras.generate_rays(torch.full_like(rows, index), rows, cols)
+    origins, directions = cameras.generate_rays(index, rows, cols)
     rays = np.concatenate([origins.numpy(), directions.numpy()], -1).astype(np.float32)
     inside = np.isfinite(scene.cast_rays(o3d.core.Tensor(rays))["t_hit"].numpy()).reshape(cameras.height,
                                                                                            cameras.width)

@@ -50,6 +50,10 @@ class Model(nn.Module):
     field: Field
     fill_mesh_cavities: bool = False
     """Whether :func:`va_plugin.export.mesh.extract_mesh` makes enclosed empty space solid (ngp sets it)."""
+    mesh_field_lipschitz: float | None = None
+    """A bound on the gradient norm of :meth:`mesh_field` when it is a signed distance that
+    :meth:`prepare_mesh_grid` leaves as it is (None: it is not), so that the mesh's grid skips the blocks
+    it places away from the surface (:func:`va_plugin.export.mesh.sample_distance_grid`)."""
 
     def __init__(self, config: ModelConfig, scene: SceneInfo) -> None:
         super().__init__()

@@ -78,6 +78,7 @@ class NeuSModelConfig(ModelConfig):
 
 class NeuSModel(Model):
     config: NeuSModelConfig
+    mesh_field_lipschitz = 4.0  # the eikonal loss holds the SDF's gradient norm near 1; the margin is wide
 
     def __init__(self, config: NeuSModelConfig, scene: SceneInfo) -> None:
         super().__init__(config, scene)
