@@ -24,9 +24,10 @@ def neus_config() -> TrainerConfig:
         method_name="neus",
         pipeline=PipelineConfig(
             datamanager=DataManagerConfig(rays_per_batch=512, foreground_fraction=0.5),
-            # the crossings prior (shrinks outlines, fills dents) and a floor under inv_s rising to 800
+            # the crossings prior (shrinks outlines, fills dents) on 64 lines a step, and a floor under inv_s
+            # rising to 800
             model=NeuSModelConfig(field=HashSDFFieldConfig(), n_samples=32, n_importance=32, up_sample_steps=2,
-                                  crossings_weight=0.05, inv_s_floor=800.0),
+                                  crossings_weight=0.05, crossings_rays=64, inv_s_floor=800.0),
         ),
         # inv_s has its own learning rate, so that it sharpens within the budget
         optimizers={"fields": OptimizerConfig(lr=1e-2), "variance": OptimizerConfig(lr=2e-2)},
