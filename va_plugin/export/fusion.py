@@ -9,6 +9,8 @@ Harmonisation fits one color gain per view and channel so that the views agree w
 
 from __future__ import annotations
 
+import itertools
+
 import numpy as np
 import torch
 
@@ -136,13 +138,21 @@ def _fit_channel(samples, n: int, keep: list[int], ridge: float, rounds: int) ->
     robust = [np.ones(len(w)) for _, _, w, _, _ in samples]
     products = [(ck * ck, cl * cl, ck * cl) for _, _, _, ck, cl in samples]  # the same in every round
     held = [i for i in range(n) if i not in keep]
+    # the median of the residuals from a strided subsample of them all (the scale of the Cauchy weights
+    # needs no more precision): which texels of each pair it picks
+    lengths = [len(w) for _, _, w, _, _ in samples]
+    total = sum(lengths)
+    picked = np.arange(0, total, max(1, total // 65536))
+    starts = np.cumsum([0] + lengths)
+    picks = [picked[(picked >= a) & (picked < b)] - a for a, b in itertools.pairwise(starts)]
     for round_ in range(rounds + 1):
         normal = np.zeros((n, n))
         for (k, l, w, _, _), (kk, ll, kl), r in zip(samples, products, robust):
             wr = w * r
-            normal[k, k] += float(np.dot(wr, kk))
-            normal[l, l] += float(np.dot(wr, ll))
-            normal[k, l] -= float(np.dot(wr, kl))
+            # np.vdot: the same sum as np.dot, without the latter's thread hand-off on 1-D arrays
+            normal[k, k] += float(np.vdot(wr, kk))
+            normal[l, l] += float(np.vdot(wr, ll))
+            normal[k, l] -= float(np.vdot(wr, kl))
             normal[l, k] = normal[k, l]
         normal[np.arange(n), np.arange(n)] += ridge
         rhs = np.full(n, ridge) - normal[:, held].sum(1)  # ridge towards 1; the held views' gains are 1
@@ -150,9 +160,8 @@ def _fit_channel(samples, n: int, keep: list[int], ridge: float, rounds: int) ->
         if round_ == rounds:
             break  # the last round's weights would go unused
         residuals = [gains[k] * ck - gains[l] * cl for k, l, _, ck, cl in samples]
-        flat = np.abs(np.concatenate(residuals))
-        # the median from a strided subsample: the scale of the Cauchy weights needs no more precision
-        scale = max(1.4826 * float(np.median(flat[:: max(1, len(flat) // 65536)])), 1e-3)
+        sample = np.abs(np.concatenate([res[pick] for res, pick in zip(residuals, picks)]))
+        scale = max(1.4826 * float(np.median(sample)), 1e-3)
         robust = [1.0 / (1.0 + (res / (OUTLIER_SCALE * scale)) ** 2) for res in residuals]
     return gains[keep]
 
