@@ -79,10 +79,12 @@ from va_plugin.utils.memory import keep_freed_memory
 applied = keep_freed_memory() if sys.argv[1] == "keep" else None
 for _ in range(3):
     torch.empty(10 << 20).fill_(1.0)  # 40 MB, freed at once
-before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
+faults = []
 for _ in range(20):
+    before = resource.getrusage(resource.RUSAGE_SELF).ru_minflt
     torch.empty(10 << 20).fill_(1.0)
-print(applied, resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+    faults.append(resource.getrusage(resource.RUSAGE_SELF).ru_minflt - before)
+print(applied, *faults)
 """
 
 
@@ -95,9 +97,11 @@ def test_keep_freed_memory_stops_page_faults_for_repeated_temporaries():
     for mode in ("default", "keep"):
         out = subprocess.run([sys.executable, "-c", _FAULTS_SCRIPT, mode], capture_output=True, text=True,
                              check=True).stdout.split()
-        counts[mode] = (out[0], int(out[1]))
+        counts[mode] = (out[0], sorted(int(n) for n in out[1:]))
     if counts["keep"][0] != "True":
         pytest.skip("this C library has no mallopt (not glibc)")
     # by default every allocation faults all its pages in (10,240 with 4 kB pages, fewer with transparent
-    # huge pages); kept, an allocation now and then still grows the heap
-    assert counts["default"][1] >= 20 and counts["keep"][1] * 4 < counts["default"][1], counts
+    # huge pages); kept, most allocations fault nothing (now and then one still grows the heap, or the
+    # system takes pages back), so the median allocation is compared
+    default, keep = (counts[mode][1][10] for mode in ("default", "keep"))
+    assert default >= 20 and keep * 4 < default, counts
