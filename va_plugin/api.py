@@ -67,6 +67,7 @@ from va_plugin.utils.memory import (
     check_mesh_resolution,
     check_render_size,
     check_texture_memory,
+    small_numpy_pages,
 )
 
 __all__ = [
@@ -419,6 +420,7 @@ def _locks_run(function: Callable[..., Any]) -> Callable[..., Any]:
 
 
 @_locks_run
+@small_numpy_pages()
 def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution: int = 128,
                 texture_size: int = 1024, fusion: str = "robust",
                 output: str | Path | Iterable[str | Path] | None = None,

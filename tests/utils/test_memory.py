@@ -3,6 +3,7 @@
 import subprocess
 import sys
 
+import numpy as np
 import pytest
 from conftest import tiny_trained_run
 
@@ -10,6 +11,7 @@ from va_plugin.cli import eval as eval_cli
 from va_plugin.cli import export as export_cli
 from va_plugin.errors import ConfigError
 from va_plugin.utils import memory
+from va_plugin.utils.memory import small_numpy_pages
 
 GIB = 2**30
 
@@ -105,3 +107,37 @@ def test_keep_freed_memory_stops_page_faults_for_repeated_temporaries():
     # system takes pages back), so the median allocation is compared
     default, keep = (counts[mode][1][10] for mode in ("default", "keep"))
     assert default >= 20 and keep * 4 < default, counts
+
+
+def _hugepage_advice(toggle) -> bool:
+    """numpy's current setting (the toggle answers with the one it replaces)."""
+    current = toggle(True)
+    toggle(current)
+    return current
+
+
+def test_small_numpy_pages_turns_numpy_hugepage_advice_off_and_back(monkeypatch):
+    toggle = getattr(np._core.multiarray, "_set_madvise_hugepage", None)
+    if toggle is None:
+        pytest.skip("this numpy has no hugepage setting")
+    monkeypatch.delenv("NUMPY_MADVISE_HUGEPAGE", raising=False)
+    before = toggle(True)
+    try:
+        with small_numpy_pages():
+            assert _hugepage_advice(toggle) is False
+            assert float(np.ones(2 << 20, np.float32).sum()) == 2 << 20  # large arrays still work
+        assert _hugepage_advice(toggle) is True
+        with pytest.raises(RuntimeError), small_numpy_pages():
+            raise RuntimeError("inside")
+        assert _hugepage_advice(toggle) is True  # restored after an error too
+
+        @small_numpy_pages()
+        def inside() -> bool:
+            return _hugepage_advice(toggle)
+
+        assert inside() is False and _hugepage_advice(toggle) is True
+        monkeypatch.setenv("NUMPY_MADVISE_HUGEPAGE", "1")  # the user's own choice is left alone
+        with small_numpy_pages():
+            assert _hugepage_advice(toggle) is True
+    finally:
+        toggle(before)

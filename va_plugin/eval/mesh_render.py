@@ -14,6 +14,7 @@ from va_plugin.eval.evaluate import image_metrics
 from va_plugin.export.render import turntable_cameras, write_video
 from va_plugin.export.views import bilinear
 from va_plugin.raycast import MeshRenderer, SurfaceHits
+from va_plugin.utils.memory import small_numpy_pages
 from va_plugin.utils.progress import progress_bar
 
 
@@ -84,6 +85,7 @@ def textured_mesh_metrics(pipeline, textured, image_scale: float = 1.0, max_view
                                                                            supersample=supersample))
 
 
+@small_numpy_pages()
 def textured_turntable(textured, out_dir: Path, n_frames: int = 24, resolution: int = 256,
                        progress: bool = True) -> Path:
     """A turntable of a baked :class:`~va_plugin.export.texture.TexturedMesh` (ray cast, unlit, on white):

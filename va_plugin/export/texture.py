@@ -26,7 +26,7 @@ from va_plugin.export.inconsistency import inconsistency_maps
 from va_plugin.export.views import OPAQUE, Views, view_samples
 from va_plugin.export.writing import bake_picture, check_texture_output, write_bake_record, write_textured_mesh
 from va_plugin.raycast import smooth_vertex_normals
-from va_plugin.utils.memory import check_texture_memory
+from va_plugin.utils.memory import check_texture_memory, small_numpy_pages
 
 MIN_TEXTURE_SIZE = 16
 MAX_TEXTURE_SIZE = 8192
@@ -86,6 +86,7 @@ Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """Colors ``[m, 3]`` of surface points ``[m, 3]`` with normals ``[m, 3]``."""
 
 
+@small_numpy_pages()
 def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
                  fallback: Fallback | None = None, progress: bool = False, atlas=None,
                  harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES,

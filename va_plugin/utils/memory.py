@@ -1,13 +1,17 @@
 """Up-front memory estimates for sizes the user picks (a marching-cubes grid, a render scale, a texture
 size): an impossible request is refused with the largest value that fits. And :func:`keep_freed_memory`,
-the allocator setting that training on CPU runs under."""
+the allocator setting that training on CPU runs under, and :func:`small_numpy_pages`, the page setting
+that the export's large arrays are made under."""
 
 from __future__ import annotations
 
+import contextlib
 import ctypes
 import math
 import os
 import sys
+
+import numpy as np
 
 from va_plugin.errors import ConfigError
 
@@ -50,6 +54,25 @@ def keep_freed_memory() -> bool:
             bool(libc.mallopt(_MALLOPT_TRIM_THRESHOLD, HEAP_KEEP_LIMIT))
     except (OSError, AttributeError):  # not glibc (musl has no mallopt)
         return False
+
+
+@contextlib.contextmanager
+def small_numpy_pages():
+    """Large numpy arrays made in the block (or the decorated function) get ordinary pages, not the
+    transparent huge pages numpy asks Linux for from 4 MB. Where the kernel compacts memory to make each
+    huge page on first touch (``defrag`` of ``madvise``, common), that fault stalls for far longer than the
+    ordinary pages of the same array take; the values are the same. The earlier setting comes back at
+    the end. Nothing changes where numpy has no such setting or ``NUMPY_MADVISE_HUGEPAGE`` chose one."""
+    toggle = getattr(getattr(np, "_core", None), "multiarray", None)
+    toggle = getattr(toggle, "_set_madvise_hugepage", None)
+    if toggle is None or os.environ.get("NUMPY_MADVISE_HUGEPAGE"):
+        yield
+        return
+    before = toggle(False)
+    try:
+        yield
+    finally:
+        toggle(before)
 
 
 def available_bytes() -> int:
