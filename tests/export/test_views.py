@@ -1,5 +1,7 @@
 """Views seen from the surface: bilinear sampling, occlusion, inconsistency maps."""
 
+import math
+
 import numpy as np
 import trimesh
 from texture_cases import RES, SIX_SIDES, TEXTURE, cube, cube_views, texel_truth
@@ -13,6 +15,34 @@ from va_plugin.export.views import Views, bilinear
 def test_bilinear_samples_pixel_centres_at_integers():
     image = np.arange(12, dtype=np.float32).reshape(3, 4)
     assert np.allclose(bilinear(image, np.float32([0, 1.5, 9]), np.float32([0, 1, 2])), [0, 5.5, 11])
+
+
+def _bilinear_reference(image, x, y):
+    """Point by point in Python floats: the four neighbours of the clamped point, the last pair of rows or
+    columns at the far border, blended along x, then along y."""
+    h, w = image.shape[:2]
+    out = []
+    for px, py in zip(x.tolist(), y.tolist()):
+        px, py = min(max(px, 0.0), w - 1.0), min(max(py, 0.0), h - 1.0)
+        c0, r0 = min(math.floor(px), max(w - 2, 0)), min(math.floor(py), max(h - 2, 0))
+        c1, r1 = min(c0 + 1, w - 1), min(r0 + 1, h - 1)
+        ax, ay = px - c0, py - r0
+        top = image[r0, c0].astype(np.float64) * (1 - ax) + image[r0, c1].astype(np.float64) * ax
+        bottom = image[r1, c0].astype(np.float64) * (1 - ax) + image[r1, c1].astype(np.float64) * ax
+        out.append(top * (1 - ay) + bottom * ay)
+    return np.asarray(out).astype(np.float32)
+
+
+def test_bilinear_equals_a_point_by_point_reference_bit_for_bit():
+    rng = np.random.default_rng(0)
+    for shape in ((7, 5, 3), (6, 9), (1, 4, 3), (4, 1)):
+        image = rng.random(shape, dtype=np.float32)
+        x = rng.uniform(-2, shape[1] + 1, 500).astype(np.float32)
+        y = rng.uniform(-2, shape[0] + 1, 500).astype(np.float32)
+        x[:3], y[:3] = [0, shape[1] - 1, shape[1] - 1], [0, shape[0] - 1, 0]  # corners exactly
+        strided = np.pad(image, [(1, 1), (1, 1)] + [(0, 0)] * (image.ndim - 2))[1:-1, 1:-1]  # not contiguous
+        for img in (image, strided):
+            assert np.array_equal(bilinear(img, x, y), _bilinear_reference(img, x, y)), shape
 
 
 def test_an_occluded_texel_takes_no_color_from_the_view_that_cannot_see_it():

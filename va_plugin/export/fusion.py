@@ -80,10 +80,11 @@ def fuse(colors: np.ndarray, weights: np.ndarray, mode: str = "robust"):
         consensus = torch.from_numpy(weighted_medoid(colors, weights))
         residual = (c - consensus[:, None]).norm(dim=-1)
         noise = torch.from_numpy(view_noise(residual.numpy(), weights > 0))
-        for _ in range(ROBUST_ROUNDS):
+        for round_ in range(ROBUST_ROUNDS):
             w = w0 / (1.0 + (residual / (OUTLIER_SCALE * noise)) ** 2)
-            consensus = torch.einsum("mn,mnc->mc", w, c) / w.sum(1, keepdim=True).clamp_min(1e-12)
-            residual = (c - consensus[:, None]).norm(dim=-1)
+            if round_ + 1 < ROBUST_ROUNDS:  # the last round's weights are the result
+                consensus = torch.einsum("mn,mnc->mc", w, c) / w.sum(1, keepdim=True).clamp_min(1e-12)
+                residual = (c - consensus[:, None]).norm(dim=-1)
     total = w.sum(1, keepdim=True)
     share = torch.where(total > 1e-12, w / total.clamp_min(1e-12), torch.zeros_like(w))
     return torch.einsum("mn,mnc->mc", share, c).numpy(), share.numpy()
