@@ -34,3 +34,21 @@ def test_written_files_load_back_with_their_texture(tmp_path, suffix):
 def test_other_formats_are_refused(tmp_path):
     with pytest.raises(VAError, match=r"\.glb or \.obj"):
         check_texture_output(tmp_path / "mesh.ply")
+
+
+def test_glb_and_obj_written_at_once_share_their_frame_record_safely(tmp_path):
+    """The bake writes its GLB and OBJ in two threads; both write ``<stem>_frame.json``. Each write has
+    temporary files of its own, so neither renames away the other's (a shared temporary name failed with
+    FileNotFoundError now and then)."""
+    from concurrent.futures import ThreadPoolExecutor
+
+    mesh = cube()
+    views = cube_views(mesh, SIX_SIDES["azimuths"], SIX_SIDES["elevations"])
+    textured, _ = bake_texture(mesh, views, size=TEXTURE)
+    textured.image = np.ascontiguousarray(np.tile(textured.image, (8, 8, 1)))  # a longer encode: a wider window
+    outs = [tmp_path / "mesh.glb", tmp_path / "mesh.obj"]
+    with ThreadPoolExecutor(max_workers=2) as pool:
+        for _ in range(30):
+            list(pool.map(lambda path: write_textured_mesh(textured, path), outs))
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["mesh.glb", "mesh.mtl", "mesh.obj", "mesh.png",
+                                                          "mesh_frame.json"]

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
+from concurrent.futures import ThreadPoolExecutor
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -187,8 +188,10 @@ def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Pa
     textured, report = bake_texture(mesh, views, size=size, fusion=fusion, progress=progress,
                                     harmonise_views=harmonise_views, max_faces=max_faces)
     written: list[Path] = []
-    for path in outputs:
-        written.extend(p for p in write_textured_mesh(textured, path, frame) if p not in written)
+    # one thread per file: most of a write is the texture's PNG encoding, which runs outside the GIL
+    with ThreadPoolExecutor(max_workers=len(outputs)) as pool:
+        for files in list(pool.map(lambda path: write_textured_mesh(textured, path, frame), outputs)):
+            written.extend(p for p in files if p not in written)
     first = outputs[0]
     written.append(bake_picture(textured, report, first.with_name(first.stem + "_bake.png")))
     written.append(write_bake_record(report, first.with_name(first.stem + "_bake.json"),

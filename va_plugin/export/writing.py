@@ -4,6 +4,7 @@ beside each view's weight map, and the bake's JSON record."""
 from __future__ import annotations
 
 import json
+import uuid
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -59,7 +60,7 @@ def write_textured_mesh(textured: TexturedMesh, path: Path, frame: str = "uprigh
     temporary = {}
     try:
         for target, data in staged.items():
-            tmp = target.with_name(target.name + ".tmp")
+            tmp = target.with_name(f"{target.name}.{uuid.uuid4().hex[:12]}.tmp")  # a write shares no temporary
             tmp.write_bytes(data)
             temporary[target] = tmp
         for target, tmp in temporary.items():
