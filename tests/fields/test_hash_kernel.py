@@ -80,6 +80,33 @@ def test_training_gradients_match_the_pytorch_path(ops, pytorch_path):
     assert fused[2].abs().sum() > 0 and fused[3].abs().sum() > 0
 
 
+@pytest.mark.parametrize("active", [3, 8])
+def test_the_table_gradient_is_zero_outside_the_rows_it_reaches_whatever_the_memory_held(ops, pytorch_path, active):
+    """The kernel zeroes each level's rows as it scatters into them (and the closed levels' rows with the
+    last open one): memory that held NaN before gives the same gradient, exactly 0 on closed levels."""
+    encoding = HashGridEncoding(**SMALL, init_scale=0.1)
+    encoding.set_active_levels(active)
+    x = _points(1500)
+    grad_encoded = torch.randn(x.shape[0], encoding.output_dim, generator=torch.Generator().manual_seed(4))
+
+    def table_grad():
+        encoded, pullback = encoding.forward_with_pullback(x)
+        loss = (encoded * grad_encoded).sum() + pullback(grad_encoded).square().sum()
+        return torch.autograd.grad(loss, encoding.table)[0]
+
+    first = table_grad()
+    del first
+    torch.full_like(encoding.table, float("nan"))  # freed at once: the next gradient may get its memory
+    fused = table_grad()
+    with pytorch_path:
+        plain = table_grad()
+    assert torch.isfinite(fused).all()
+    torch.testing.assert_close(fused, plain, rtol=1e-5, atol=1e-5 * plain.abs().max().item())
+    closed = encoding.offsets[active] if active < len(encoding.offsets) else fused.shape[-1]
+    assert torch.equal(fused[:, closed:], torch.zeros_like(fused[:, closed:]))
+    assert fused[:, :closed].abs().sum() > 0
+
+
 @pytest.mark.parametrize("use", ["pullback only", "encoding only"])
 def test_a_loss_on_one_output_alone_trains_the_table_the_same(ops, pytorch_path, use):
     encoding = HashGridEncoding(**SMALL, init_scale=0.1)

@@ -16,6 +16,7 @@
 #include <ATen/Parallel.h>
 #include <torch/library.h>
 
+#include <algorithm>
 #include <cstdint>
 #include <vector>
 
@@ -314,19 +315,31 @@ at::Tensor table_grad(const at::Tensor& x01, const at::Tensor& table, const c10:
     check_per_point(*g, n, width, "the pulled-back derivative");
     check_per_point(*gd, n, 3, "the derivative w.r.t. the pulled-back gradient");
   }
-  at::Tensor out = at::zeros({F, E}, table.options());
+  // Each level's rows are zeroed by the task that scatters into them, just before: the rows are then in
+  // cache for the scatter, instead of one pass over the whole table beforehand evicting them.
+  at::Tensor out = at::empty({F, E}, table.options());
   const float* x = q.x;
   const float* ge = has_encoded ? grad_encoded->data_ptr<float>() : nullptr;
   const float* gp = has_pull ? g->data_ptr<float>() : nullptr;
   const float* gdp = has_pull ? gd->data_ptr<float>() : nullptr;
   float* o = out.data_ptr<float>();
   const int64_t L = static_cast<int64_t>(q.grid.levels.size());
+  auto zero_rows = [&](int64_t first, int64_t last) {
+    for (int64_t f = 0; f < F; ++f) std::fill(o + f * E + first, o + f * E + last, 0.0f);
+  };
+  if (L == 0) {
+    zero_rows(0, E);
+    return out;
+  }
+  zero_rows(0, q.grid.levels[0].offset);  // rows before the first level (none in the encoding's layout)
   // Levels write disjoint rows. Threads take contiguous runs of tasks, and task i is level 0, L-1, 1,
   // L-2, ...: each run mixes cheap coarse levels (small, cached tables) with costly fine ones.
   at::parallel_for(0, L, 1, [&](int64_t begin, int64_t end) {
     for (int64_t task = begin; task < end; ++task) {
       const int64_t l = task % 2 == 0 ? task / 2 : L - 1 - task / 2;
       const Level& v = q.grid.levels[l];
+      // the last open level's task also zeroes the rows of the levels not yet open
+      zero_rows(v.offset, l + 1 < L ? q.grid.levels[l + 1].offset : E);
       float* rows = o + v.offset;
       dispatch_kind(v, [&](auto dense) {
         constexpr bool kDense = decltype(dense)::value;
