@@ -129,16 +129,3 @@ def write_syncdreamer_strip(path: Path, tile: int = 32, alpha: bool = False) -> 
     path.parent.mkdir(parents=True, exist_ok=True)
     write_image(path, image)
     return path
-
-
-def ball_masks(cameras, centre, radius):
-    """Exact silhouettes ``[n, H, W]`` of a ball: pixels whose ray passes within ``radius`` of ``centre``."""
-    masks = []
-    for k in range(len(cameras)):
-        views, rows, cols = cameras.pixel_grid(k)
-        origins, directions = cameras.generate_rays(views, rows, cols)
-        to_centre = centre - origins
-        along = (to_centre * directions).sum(-1, keepdim=True)
-        distance = (to_centre - along * directions).norm(dim=-1)
-        masks.append((distance < radius).reshape(cameras.height, cameras.width))
-    return torch.stack(masks)

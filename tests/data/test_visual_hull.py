@@ -2,10 +2,22 @@
 
 import pytest
 import torch
-from conftest import ball_masks
 
 from va_plugin.data import rigs
 from va_plugin.data.visual_hull import normalise_cameras, unit_box_transform, visual_hull
+
+
+def ball_masks(cameras, centre, radius):
+    """Exact silhouettes ``[n, H, W]`` of a ball: pixels whose ray passes within ``radius`` of ``centre``."""
+    masks = []
+    for k in range(len(cameras)):
+        views, rows, cols = cameras.pixel_grid(k)
+        origins, directions = cameras.generate_rays(views, rows, cols)
+        to_centre = centre - origins
+        along = (to_centre * directions).sum(-1, keepdim=True)
+        distance = (to_centre - along * directions).norm(dim=-1)
+        masks.append((distance < radius).reshape(cameras.height, cameras.width))
+    return torch.stack(masks)
 
 
 @pytest.mark.parametrize("cameras", [rigs.syncdreamer_rig(64, pixel_offset=0.5), rigs.wonder3d_rig(64)],

@@ -37,7 +37,7 @@ class Hull:
         return Hull((self.points - centre) * scale, self.voxel * scale, list(self.silhouette_iou))
 
 
-def inside_all(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
+def _inside_all(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
     """``[m]`` True where a point projects into the foreground of every view. A projection beyond the
     frame takes the mask value at the nearest edge pixel, so an object cut by the frame is not cut off."""
     keep = torch.ones(points.shape[0], dtype=torch.bool)
@@ -47,18 +47,6 @@ def inside_all(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor) -> t
         row = uv[:, 1].round().clamp(0, cameras.height - 1).long()
         keep[keep.clone()] = masks[k, row, col] & (depth > 0)
     return keep
-
-
-def foreground_votes(cameras: Cameras, masks: torch.Tensor, points: torch.Tensor) -> torch.Tensor:
-    """``[m]`` the number of views into whose foreground each point projects (in front of the camera; the
-    frame's edge pixels extended beyond it, as in :func:`inside_all`)."""
-    votes = torch.zeros(points.shape[0], dtype=torch.int32)
-    for k in range(len(cameras)):
-        uv, depth = cameras.project(points, k)
-        col = uv[:, 0].round().clamp(0, cameras.width - 1).long()
-        row = uv[:, 1].round().clamp(0, cameras.height - 1).long()
-        votes += masks[k, row, col] & (depth > 0)
-    return votes
 
 
 def _grid(lower: torch.Tensor, upper: torch.Tensor, resolution: int) -> tuple[torch.Tensor, float]:
@@ -93,11 +81,11 @@ def _visual_hull(cameras: Cameras, masks: torch.Tensor, resolution: int) -> Hull
     bound = search_bound(cameras)
     lower, upper = torch.full((3,), -bound), torch.full((3,), bound)
     points, voxel = _grid(lower, upper, resolution // 2)
-    occupied = points[inside_all(cameras, masks, points)]
+    occupied = points[_inside_all(cameras, masks, points)]
     if occupied.numel():
         lower, upper = occupied.min(0).values - voxel, occupied.max(0).values + voxel
         points, voxel = _grid(lower, upper, resolution)
-        occupied = points[inside_all(cameras, masks, points)]
+        occupied = points[_inside_all(cameras, masks, points)]
     return Hull(occupied, voxel, silhouette_agreement(cameras, masks, occupied, voxel))
 
 

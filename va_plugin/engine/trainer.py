@@ -522,8 +522,6 @@ class Trainer:
             self._send_planned_signal("start")
         # values below 1e-38 count as zero during the step: off the processor's slow path (same results)
         with denormals_flushed(self.device.type == "cpu"):
-            if self.step == 0:
-                self.model.start_training()
             self._run_callbacks(BEFORE_STEP)
             record = self._step()
             self._run_callbacks(AFTER_STEP)

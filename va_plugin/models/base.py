@@ -26,7 +26,6 @@ class SceneInfo:
     background: Sequence[float] = (1.0, 1.0, 1.0)
     schedule_steps: int = 1000  # where the run's schedules end (the trainer's ``schedule_steps_of``)
     train_cameras: Cameras | None = None  # on the device (the NGP occupancy grid keeps cells they all see)
-    train_masks: torch.Tensor | None = None  # [n, H, W] foreground of the training views, when known
 
 
 @dataclass
@@ -71,10 +70,6 @@ class Model(nn.Module):
         schedules (``Field.update_step``) follow."""
         self.step = step
         self.field.update_step(step, self.scene.schedule_steps)
-
-    def start_training(self) -> None:
-        """Called by the trainer before the first step of a run (not on a resume): a place for work on
-        the data that sets the starting parameters. Nothing by default."""
 
     def restore_step(self, step: int) -> None:
         """Set the step schedules (``self.step``, the field's) as :meth:`update_step` sets them for step

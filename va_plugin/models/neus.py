@@ -12,7 +12,6 @@ from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
 from va_plugin.model_components import losses, renderers
-from va_plugin.model_components.hull_start import fit_field_to_volume, hull_sdf_volume
 from va_plugin.model_components.neus import SingleVariance, neus_alpha, sdf_band, section_alpha, surface_crossings
 from va_plugin.model_components.occupancy_grid import scatter
 from va_plugin.model_components.samplers import sample_pdf, uniform_edges
@@ -75,12 +74,6 @@ class NeuSModelConfig(ModelConfig):
     """Stratified points per line of the crossings prior; the soft indicator's width is their spacing."""
     crossings_start: float = 0.1
     """Share of the step budget before the crossings prior starts."""
-    hull_start_steps: int = 0
-    """Before the first training step, fit the SDF to the signed distance of the masks' visual hull in
-    this many steps (0: start from the field's own sphere). Needs masks; without them, or with an empty
-    hull, the run starts from the sphere."""
-    hull_resolution: int = 64
-    """Voxels a side of the visual hull's grid over the scene's bounding cube."""
 
 
 class NeuSModel(Model):
@@ -101,9 +94,6 @@ class NeuSModel(Model):
             raise ConfigError("crossings_weight must be >= 0, crossings_rays >= 1, crossings_samples >= 2 and "
                               f"crossings_start in [0, 1], got {config.crossings_weight}, {config.crossings_rays}, "
                               f"{config.crossings_samples} and {config.crossings_start}")
-        if config.hull_start_steps < 0 or not 8 <= config.hull_resolution <= 512:
-            raise ConfigError(f"hull_start_steps must be >= 0 and hull_resolution in [8, 512], got "
-                              f"{config.hull_start_steps} and {config.hull_resolution}")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
         if config.sdf_gradient == "analytic" and not self.field.analytic_sdf_gradient:
@@ -116,7 +106,6 @@ class NeuSModel(Model):
         # and SDF evaluations of the gradient-free coarse and up-sampling passes
         self.samples_per_ray = 0.0
         self.probed_per_ray = 0.0
-        self.hull_start_error: float | None = None  # the fit's mean absolute error, after a hull start
 
     # -- schedules ------------------------------------------------------------------------------
     def inv_s_floor(self, step: int) -> float:
@@ -140,17 +129,6 @@ class NeuSModel(Model):
         if floor > 0:
             with torch.no_grad():
                 self.variance.variance.clamp_(min=math.log(floor) / 10.0)
-
-    def start_training(self) -> None:
-        """With ``hull_start_steps``, fit the SDF to the masks' visual hull (at step 0's schedules)."""
-        cfg, scene = self.config, self.scene
-        if cfg.hull_start_steps <= 0 or scene.train_masks is None or scene.train_cameras is None:
-            return
-        volume = hull_sdf_volume(scene.train_cameras, scene.train_masks, scene.scene_radius, cfg.hull_resolution)
-        if volume is None:
-            return
-        self.update_step(0)
-        self.hull_start_error = fit_field_to_volume(self.field, volume, scene.scene_radius, cfg.hull_start_steps)
 
     def get_param_groups(self) -> dict[str, list[nn.Parameter]]:
         groups = self.field.param_groups()
