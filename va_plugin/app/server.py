@@ -317,7 +317,8 @@ class App:
                     # every kind of file reaches inspect(), which says in one line what it cannot use
                     upload = gr.File(label="Generator output (PNG, or a zip of a folder)", elem_id="upload")
                     quality = gr.Radio(list(QUALITIES), value="default", label="Quality",
-                                       info="fast: a rough mesh in a fraction of the time; accurate: slower, finer")
+                                       info="fast: a rough mesh in a fraction of the time; accurate: the paper's large "
+                                            "network, hours on a CPU (meant for a GPU)")
                     views = gr.Dropdown(list(VIEW_CHOICES), value="all", label="Training views",
                                         info="SyncDreamer strips: 4, 8, 12 or 16 of the 16 views")
                     with gr.Row():
