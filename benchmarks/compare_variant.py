@@ -19,11 +19,17 @@ ROWS = Path(__file__).parent / "results" / "all-views" / "rows-l2.jsonl"
 
 
 def load(path: Path, views: int = 16) -> dict[tuple[str, str], dict]:
+    """The rows of ``views`` views by (object, variant); a malformed line raises ``LookupError``."""
     rows = {}
-    for line in path.read_text().splitlines():
-        row = json.loads(line)
-        if row.get("views") == views:
-            rows[(row["object"], row.get("variant", ""))] = row
+    for number, line in enumerate(path.read_text().splitlines(), 1):
+        if not line.strip():
+            continue
+        try:
+            row = json.loads(line)
+            if row.get("views") == views:
+                rows[(row["object"], row.get("variant", ""))] = row
+        except (json.JSONDecodeError, KeyError, AttributeError) as exc:
+            raise LookupError(f"{path} line {number} is not a row ({exc})") from None
     return rows
 
 
@@ -33,7 +39,7 @@ def table(rows: dict[tuple[str, str], dict], variant: str, first: str, second: s
         raise LookupError(f"no object has rows of {variant!r}, {first!r} and {second!r}")
     lines = ["| object | PSNR | LPIPS | CD | against the first seed (PSNR, CD) | the two seeds differ by |",
              "|---|---|---|---|---|---|"]
-    sums = {"psnr": 0.0, "lpips": 0.0, "cd": 0.0, "base_psnr": 0.0, "base_lpips": 0.0, "base_cd": 0.0}
+    kept = []  # (variant row, the two seeds' mean PSNR, LPIPS and CD)
     for name in objects:
         row, a, b = rows[(name, variant)], rows[(name, first)], rows[(name, second)]
         psnr, lpips, cd = ((a[k] + b[k]) / 2 for k in ("psnr", "lpips", "cd"))
@@ -43,14 +49,13 @@ def table(rows: dict[tuple[str, str], dict], variant: str, first: str, second: s
                      f"{100 * (row['cd'] / cd - 1):+.1f}% | {row['psnr'] - a['psnr']:+.2f} dB, "
                      f"{100 * (row['cd'] / a['cd'] - 1):+.1f}% | {seed_psnr:.2f} dB, {seed_cd:.1f}%"
                      f"{' **outside twice**' if outside else ''} |")
-        for key, value in (("psnr", row["psnr"]), ("lpips", row["lpips"]), ("cd", row["cd"]),
-                           ("base_psnr", psnr), ("base_lpips", lpips), ("base_cd", cd)):
-            sums[key] += value
-    n = len(objects)
-    mean = {k: v / n for k, v in sums.items()}
-    lines.append(f"| **mean ({n})** | {mean['psnr']:.2f} ({mean['psnr'] - mean['base_psnr']:+.2f}) | "
-                 f"{mean['lpips']:.4f} ({mean['lpips'] - mean['base_lpips']:+.4f}) | {mean['cd']:.5f} "
-                 f"(x{mean['cd'] / mean['base_cd']:.3f}) | | |")
+        kept.append((row, psnr, lpips, cd))
+    n = len(kept)
+    psnr, base_psnr = sum(k[0]["psnr"] for k in kept) / n, sum(k[1] for k in kept) / n
+    lpips, base_lpips = sum(k[0]["lpips"] for k in kept) / n, sum(k[2] for k in kept) / n
+    cd, base_cd = sum(k[0]["cd"] for k in kept) / n, sum(k[3] for k in kept) / n
+    lines.append(f"| **mean ({n})** | {psnr:.2f} ({psnr - base_psnr:+.2f}) | {lpips:.4f} ({lpips - base_lpips:+.4f}) | "
+                 f"{cd:.5f} (x{cd / base_cd:.3f}) | | |")
     return lines
 
 

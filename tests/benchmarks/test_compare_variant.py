@@ -40,5 +40,10 @@ def test_a_variant_without_rows_is_one_line(compare, tmp_path, capsys):
     rows = _rows(tmp_path / "rows.jsonl", [{"object": "a", "variant": "s42", "psnr": 25.0, "lpips": 0.1, "cd": 0.01}])
     assert compare.main(["new", "--seeds", "s42,s43", "--rows", str(rows)]) == 2
     assert compare.main(["new", "--rows", str(tmp_path / "missing.jsonl")]) == 2
+    (tmp_path / "bad.jsonl").write_text('{"views": 16, "psnr": 1}\n')  # no object
+    assert compare.main(["new", "--rows", str(tmp_path / "bad.jsonl")]) == 2
+    (tmp_path / "bad.jsonl").write_text("not json\n")
+    assert compare.main(["new", "--rows", str(tmp_path / "bad.jsonl")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
-    assert len(err) == 2 and all(line.startswith("error: ") for line in err)
+    assert len(err) == 4 and all(line.startswith("error: ") for line in err)
+    assert "line 1 is not a row" in err[3]
