@@ -96,3 +96,40 @@ def test_fresh_branches_are_the_identity():
     assert torch.equal(branches.forward_all(features), features[:, None].expand(7, 4, 6))
     assert torch.equal(branches.forward_own(features, torch.tensor([0, 1, 2, 3, 0, 1, 2])), features)
     assert branches.forward_own(features[:0], torch.zeros(0, dtype=torch.long)).shape == (0, 6)
+
+
+def _own_by_advanced_indexing(branches: ViewBranches, features: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
+    """The own-view branches written with advanced indexing into the padded block (the formulation the
+    row copies of ``forward_own`` replace)."""
+    order = torch.argsort(views)
+    sorted_views = views[order]
+    counts = torch.bincount(sorted_views, minlength=branches.n_views)
+    slot = torch.arange(views.shape[0]) - (torch.cumsum(counts, 0) - counts)[sorted_views]
+    padded = features.new_zeros(branches.n_views, int(counts.max()), features.shape[-1])
+    padded[sorted_views, slot] = features[order]
+    out = branches._mlp(padded)[sorted_views, slot]
+    result = torch.empty_like(out)
+    result[order] = out
+    return features + result
+
+
+@pytest.mark.parametrize("n_samples", [1, 37, 1000])
+def test_own_branches_give_the_same_bits_as_advanced_indexing(n_samples):
+    """Outputs and every gradient (features, weights, biases) are equal bit for bit."""
+    torch.manual_seed(n_samples)
+    branches = ViewBranches(n_views=16, feature_dim=8, width=12, n_layers=2)
+    with torch.no_grad():
+        for p in branches.parameters():
+            p.normal_()
+    views = torch.randint(0, 16, (n_samples,))
+    views[views == 3] = 4  # a view without samples
+    features, cotangent = torch.randn(n_samples, 8), torch.randn(n_samples, 8)
+    results = []
+    for compute in (branches.forward_own, lambda f, v: _own_by_advanced_indexing(branches, f, v)):
+        branches.zero_grad(set_to_none=True)
+        x = features.clone().requires_grad_(True)
+        out = compute(x, views)
+        (out * cotangent).sum().backward()
+        results.append([out.detach(), x.grad] + [p.grad for p in branches.parameters()])
+    for fast, plain in zip(*results):
+        assert torch.equal(fast, plain)

@@ -405,3 +405,46 @@ def test_the_shared_color_loss_renders_the_shared_path_of_the_training_rays(meth
     off = _trainer(method, tiny_scene, tmp_path / "off", **{"pipeline.model.field.shared_color_weight": 0})
     off.model.field.set_phase(FUSION)
     assert "shared_rgb" not in off.model.get_loss_dict(off.model.get_outputs(ray_bundle), batch)
+
+
+def test_the_regularizers_gradient_equals_a_second_pass_on_detached_features():
+    """The fused tokens and attention serve the color and the regularizers with one forward; the gradient
+    is the one of the two-pass formulation (the color's pass on f_shared, the regularizers' on f_shared
+    detached) bit for bit, and only the color's reaches f_shared."""
+    from va_plugin.adaptive.field import _ParametersOnly, own_tokens
+    from va_plugin.adaptive.losses import attention_entropy, feature_consistency
+
+    torch.manual_seed(3)
+    field = ViewAdaptiveFieldConfig(branch_width=16, attention_dim=16).setup(num_train_views=5)
+    with torch.no_grad():
+        for p in (*field.branches.parameters(), *field.attention.parameters()):
+            p.normal_(0.0, 0.3)
+    params = (*field.branches.parameters(), *field.attention.parameters())
+    features = torch.randn(40, field.feature_dim)
+    views = torch.randint(0, 5, (40,))
+    cotangent = torch.randn(40, field.feature_dim)
+
+    def loss(color_tokens, color_alpha, reg_tokens, reg_alpha):
+        color = (own_tokens(color_tokens, views) * cotangent).sum()
+        return color + attention_entropy(reg_alpha).sum() + feature_consistency(reg_tokens).sum()
+
+    grads = []
+    for one_pass in (True, False):
+        field.zero_grad(set_to_none=True)
+        flat = features.clone().requires_grad_(True)
+        tokens, alpha = field.attention(field.branches.forward_all(flat))
+        if one_pass:
+            reg_tokens, reg_alpha = _ParametersOnly.apply(tokens, alpha, *params)
+        else:
+            reg_tokens, reg_alpha = field.attention(field.branches.forward_all(flat.detach()))
+        loss(tokens, alpha, reg_tokens, reg_alpha).backward()
+        grads.append([flat.grad] + [p.grad for p in params])
+    for fast, plain in zip(*grads):
+        assert torch.equal(fast, plain)
+    # the regularizers alone send nothing to f_shared
+    flat = features.clone().requires_grad_(True)
+    tokens, alpha = field.attention(field.branches.forward_all(flat))
+    reg_tokens, reg_alpha = _ParametersOnly.apply(tokens, alpha, *params)
+    (attention_entropy(reg_alpha).sum() + feature_consistency(reg_tokens).sum()).backward()
+    assert flat.grad is None or not bool(flat.grad.any())
+    assert any(bool(p.grad.abs().sum() > 0) for p in params)

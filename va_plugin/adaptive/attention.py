@@ -39,7 +39,9 @@ class ViewAttention(nn.Module):
     def forward(self, tokens: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``tokens [S, n, D]`` -> (fused ``[S, n, D]``, attention weights ``[S, H, n, n]``, rows sum to 1)."""
         s, n, _ = tokens.shape
-        q, k, v = self.qkv(tokens).view(s, n, 3, self.n_heads, self.head_dim).permute(2, 0, 3, 1, 4)
+        # split on the last dimension: the backward joins the three gradients with one concatenation
+        q, k, v = (part.view(s, n, self.n_heads, self.head_dim).transpose(1, 2)
+                   for part in self.qkv(tokens).split(self.n_heads * self.head_dim, dim=-1))
         logits = (q @ k.transpose(-1, -2)) / math.sqrt(self.head_dim)
         alpha = torch.softmax(logits.clamp(-LOGIT_BOUND, LOGIT_BOUND), dim=-1)
         heads = (alpha @ v).transpose(1, 2).reshape(s, n, self.n_heads * self.head_dim)

@@ -62,17 +62,19 @@ class ViewBranches(nn.Module):
 
     def forward_own(self, features: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
         """Only the branch of each sample's own view: ``[S, D], views [S] in [0, n) -> [S, D]``, as one
-        batched matmul over samples grouped by view into a padded ``[n_views, max_count, D]`` block."""
+        batched matmul over the samples grouped by view into a padded ``[n_views, max_count, D]`` block.
+        Each sample's row in the block is found once; the features go in and the outputs come out by
+        row copies."""
         if features.shape[0] == 0:
             return features
         order = torch.argsort(views)
         sorted_views = views[order]
         counts = torch.bincount(sorted_views, minlength=self.n_views)
         starts = torch.cumsum(counts, 0) - counts
+        width = int(counts.max())
         slot = torch.arange(views.shape[0], device=views.device) - starts[sorted_views]
-        padded = features.new_zeros(self.n_views, int(counts.max()), features.shape[-1])
-        padded[sorted_views, slot] = features[order]
-        out = self._mlp(padded)[sorted_views, slot]
-        result = torch.empty_like(out)
-        result[order] = out
-        return features + result
+        row = torch.empty_like(order).index_copy_(0, order, sorted_views * width + slot)
+        dim = features.shape[-1]
+        padded = features.new_zeros(self.n_views * width, dim).index_copy(0, row, features)
+        out = self._mlp(padded.view(self.n_views, width, dim)).view(-1, dim).index_select(0, row)
+        return features + out

@@ -247,12 +247,13 @@ class ViewAdaptiveField(Field):
         """The shared color everywhere, overwritten where ``routes`` send a sample down the adaptive path
         (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``)."""
         index = routes.adaptive
-        sub = self._adaptive(flat[index], views[index], weights[index], mode)
+        sub = self._adaptive(flat.index_select(0, index), views[index], weights[index], mode)
         base_rgb = self.base.decode_color(flat)
         rgb = base_rgb.index_copy(0, index, sub.pop("rgb"))
         if routes.own_only is not None:
             own = routes.own_only
-            rgb = rgb.index_copy(0, own, self.base.decode_color(self.branches.forward_own(flat[own], views[own])))
+            own_rgb = self.base.decode_color(self.branches.forward_own(flat.index_select(0, own), views[own]))
+            rgb = rgb.index_copy(0, own, own_rgb)
         out = {"rgb": rgb}
         if mode.shared_color:
             out["rgb_shared"] = base_rgb
@@ -272,7 +273,6 @@ class ViewAdaptiveField(Field):
         """The branch (+ fusion) path on flat features ``[S, D]`` with views ``[S]`` (-1: canonical) and
         their rendering weights ``[S]`` (None: unknown): ``rgb [S, 3]``, and as :meth:`color` says."""
         novel = views < 0
-        d = flat.shape[-1]
         cfg = self.config
         if not mode.fusion and not bool(novel.any()):
             # branches alone: each sample needs only its own view's branch
@@ -281,14 +281,14 @@ class ViewAdaptiveField(Field):
         alpha = None
         if mode.fusion:
             tokens, alpha = self.attention(tokens)
-        own = tokens.gather(1, views.clamp_min(0)[:, None, None].expand(-1, 1, d)).squeeze(1)
+        own = own_tokens(tokens, views)
         feature = torch.where(novel[:, None], flat, own)
         out = {"rgb": self.base.decode_color(feature)}
         if mode.fusion and mode.training:
             if cfg.entropy_weight > 0 or cfg.consistency_weight > 0:
-                # a second pass on f_shared detached: the regularizers' gradient on the shared field
-                # can dissolve the surface
-                reg_tokens, reg_alpha = self.attention(self.branches.forward_all(flat.detach()))
+                # the regularizers' gradient must not reach f_shared (it can dissolve the surface)
+                params = (*self.branches.parameters(), *self.attention.parameters())
+                reg_tokens, reg_alpha = _ParametersOnly.apply(tokens, alpha, *params)
                 if cfg.entropy_weight > 0:
                     out["va_entropy"] = attention_entropy(reg_alpha)
                 if cfg.consistency_weight > 0:
@@ -361,6 +361,34 @@ class ViewAdaptiveField(Field):
         if self.fusion_active():
             out["fused_share"] = round(self.fused_share, 4)
         return out
+
+
+def own_tokens(tokens: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
+    """Each sample's token of its own view: ``tokens [S, n, D], views [S] -> [S, D]`` (view -1: token 0)."""
+    d = tokens.shape[-1]
+    return tokens.gather(1, views.clamp_min(0)[:, None, None].expand(-1, 1, d)).squeeze(1)
+
+
+class _ParametersOnly(torch.autograd.Function):
+    """The identity on the fused tokens ``[S, n, D]`` and the attention ``[S, H, n, n]``, whose backward
+    sends their gradient to ``params`` (the branches' and the attention's) and not further back: the
+    gradient the same pass on f_shared detached would give, without a second forward."""
+
+    @staticmethod
+    def forward(ctx, tokens: torch.Tensor, alpha: torch.Tensor, *params: torch.Tensor):
+        ctx.set_materialize_grads(False)
+        ctx.graph, ctx.params = (tokens, alpha), params
+        return tokens.detach(), alpha.detach()
+
+    @staticmethod
+    def backward(ctx, grad_tokens, grad_alpha):
+        used = [(t, g) for t, g in zip(ctx.graph, (grad_tokens, grad_alpha)) if g is not None]
+        grads = (None,) * len(ctx.params)
+        if used:
+            outputs, cotangents = zip(*used)
+            # the forward's graph is kept: the colors' gradient runs through it after this
+            grads = torch.autograd.grad(outputs, ctx.params, cotangents, retain_graph=True, allow_unused=True)
+        return None, None, *grads
 
 
 @dataclass(frozen=True)
