@@ -91,20 +91,22 @@ def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: floa
         nears, fars, _ = near_far_from_sphere(origins, directions, scene_radius)
         t = torch.linspace(0.0, 1.0, samples)[None, :]
         depths = nears + (fars - nears) * t  # [m, s]
-        points = origins[:, None, :] + directions[:, None, :] * depths[..., None]
-        supported = torch.ones(points.shape[:2], dtype=torch.bool)
+        points = (origins[:, None, :] + directions[:, None, :] * depths[..., None]).reshape(-1, 3)
+        alive = torch.arange(points.shape[0])  # the points no other view has ruled out yet
         for other in range(n_views):
-            if other == view:
+            if other == view or alive.numel() == 0:
                 continue
-            uv, depth = cameras.project(points.reshape(-1, 3), other)
+            uv, depth = cameras.project(points[alive], other)
             col, row = uv[:, 0].round().long(), uv[:, 1].round().long()
             in_frame = (col >= 0) & (col < width) & (row >= 0) & (row < height)
             # beyond the frame: the other view cannot rule the point out
             seen = torch.ones_like(in_frame)
             seen[in_frame] = grown[other, row[in_frame], col[in_frame]]
-            supported &= (seen | (depth <= 0)).reshape(supported.shape)
+            alive = alive[seen | (depth <= 0)]
+        supported = torch.zeros(points.shape[0], dtype=torch.bool)
+        supported[alive] = True
         hit = (fars > nears)[:, 0]
-        ok = supported.any(-1) & hit
+        ok = supported.view(-1, samples).any(-1) & hit
         fractions.append(1.0 - float(ok.float().mean()))
         counts.append(int(inside.numel()))
     return SilhouetteSupport(fractions, counts, threshold)
