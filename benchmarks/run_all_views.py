@@ -21,6 +21,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import signal
 import sys
 import time
 from concurrent.futures import ProcessPoolExecutor
@@ -49,7 +50,30 @@ def build(root: Path, data_root: Path, name: str, views: int, level: int) -> Pat
                        gso_off_rig=True)
 
 
+MAIN_PROCESS: int | None = None
+"""In a worker: the main process (set by :func:`start_worker`)."""
+
+
+def start_worker(parent: int) -> None:
+    """A worker's start: its row is interrupted (a checkpoint saved) if the main process ``parent`` dies."""
+    global MAIN_PROCESS
+    from va_plugin.utils.interrupts import interrupt_when_orphaned
+
+    MAIN_PROCESS = parent
+    interrupt_when_orphaned(parent)
+
+
 def run_one(job: dict[str, Any]) -> dict[str, Any]:
+    """:func:`train_and_score` in a worker; one whose main process is gone ends once its row stopped."""
+    try:
+        return train_and_score(job)
+    except KeyboardInterrupt:
+        if MAIN_PROCESS is not None and os.getppid() != MAIN_PROCESS:
+            os._exit(130)  # nobody is left to answer, and the pool's queues would hold this process
+        raise
+
+
+def train_and_score(job: dict[str, Any]) -> dict[str, Any]:
     """Train the default on one scene (one torch thread), then evaluate its final state."""
     import torch
 
@@ -212,6 +236,40 @@ def rescore(args: argparse.Namespace, done: dict[str, dict[str, Any]], rows_file
     return 0
 
 
+class Terminated(KeyboardInterrupt):
+    """SIGTERM reached the main process (not its workers, which a Ctrl-C at a terminal reaches too)."""
+
+
+def run_rows(jobs: list[dict[str, Any]], n_jobs: int, rows_file: Path, done: dict[str, dict[str, Any]]) -> None:
+    """Train and score ``jobs`` in ``n_jobs`` spawned workers, appending each finished row to ``rows_file``.
+    Ctrl-C or SIGTERM interrupts the running rows (each saves a checkpoint at the end of its step) and waits
+    for them; a worker whose main process was killed interrupts its row by itself."""
+    def terminated(signum, frame) -> None:
+        signal.signal(signal.SIGTERM, signal.SIG_DFL)  # a second one ends the process at once
+        raise Terminated
+
+    pool = ProcessPoolExecutor(n_jobs, mp_context=get_context("spawn"), initializer=start_worker,
+                               initargs=(os.getpid(),))
+    previous = signal.signal(signal.SIGTERM, terminated)
+    try:
+        with open(rows_file, "a") as out:
+            for row in pool.map(run_one, jobs):
+                out.write(json.dumps(row) + "\n")
+                out.flush()
+                done[row["key"]] = row
+                print(json.dumps(row), file=sys.stderr)
+    except KeyboardInterrupt as interrupt:
+        if isinstance(interrupt, Terminated):  # pass it on as the interrupt a terminal would have sent them
+            for process in list((getattr(pool, "_processes", None) or {}).values()):
+                if process.is_alive():
+                    os.kill(process.pid, signal.SIGINT)
+        pool.shutdown(wait=True, cancel_futures=True)
+        raise
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+    pool.shutdown(wait=True)
+
+
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--data-root", type=Path, default=Path("../shared/data/gso"))
@@ -264,12 +322,12 @@ def main(argv=None) -> int:
     except VAError as exc:
         sys.exit(f"error: {exc}")
     print(f"{len(done)} rows done, {len(jobs)} to run with {args.jobs} job(s)", file=sys.stderr)
-    with ProcessPoolExecutor(args.jobs, mp_context=get_context("spawn")) as pool, open(rows_file, "a") as out:
-        for row in pool.map(run_one, jobs):
-            out.write(json.dumps(row) + "\n")
-            out.flush()
-            done[row["key"]] = row
-            print(json.dumps(row), file=sys.stderr)
+    try:
+        run_rows(jobs, args.jobs, rows_file, done)
+    except KeyboardInterrupt:
+        print(f"interrupted: {len(done)} rows done; the same command continues (running rows from their "
+              "checkpoints)", file=sys.stderr)
+        return 130
     fidelity = {n: round(texture_fidelity(args.out / "scenes" / f"{n}-l{args.level}-v{counts[0]}"), 2) for n in names}
     variants = [""] + sorted({r.get("variant", "") for r in done.values()} - {""})
     configs = [(v, variant) for variant in variants for v in counts

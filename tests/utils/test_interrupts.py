@@ -166,3 +166,42 @@ def test_the_signal_plan_of_the_test_hook():
     for bad in ("x:INT", "3:NOPE", "3:INT@later", "3"):
         with pytest.raises(ValueError, match="STEP:SIGNAL"):
             signal_plan(bad)
+
+
+_ORPHAN = textwrap.dedent("""
+    import os, signal, sys, time
+    from va_plugin.utils.interrupts import interrupt_when_orphaned
+    marker, ignore = sys.argv[2], sys.argv[3] == "ignore"
+    def interrupted(signum, frame):
+        open(marker, "w").write("interrupted")
+        os._exit(0)
+    signal.signal(signal.SIGINT, signal.SIG_IGN if ignore else interrupted)
+    interrupt_when_orphaned(int(sys.argv[1]), poll_seconds=0.05, grace_seconds=0.5)
+    open(marker + ".ready", "w").write("")
+    time.sleep(60)
+""")
+
+_PARENT = textwrap.dedent("""
+    import os, subprocess, sys, time
+    child = subprocess.Popen([sys.executable, "-c", sys.argv[1], str(os.getpid()), sys.argv[2], sys.argv[3]])
+    print(child.pid, flush=True)
+    while not os.path.exists(sys.argv[2] + ".ready"):
+        time.sleep(0.05)
+    os._exit(0)  # gone without a word to the child
+""")
+
+
+@pytest.mark.parametrize("child_ignores_sigint", [False, True])
+def test_a_worker_whose_main_process_died_is_interrupted_then_ended(tmp_path, child_ignores_sigint):
+    """interrupt_when_orphaned: the worker gets the SIGINT a Ctrl-C would send once its main process is gone,
+    and ends after the grace time when it does not stop by itself."""
+    marker = tmp_path / "marker"
+    mode = "ignore" if child_ignores_sigint else "handle"
+    parent = subprocess.run([sys.executable, "-c", _PARENT, _ORPHAN, str(marker), mode], capture_output=True,
+                            text=True, timeout=60, check=True)
+    child = int(parent.stdout.split()[0])
+    deadline = time.monotonic() + 20
+    while time.monotonic() < deadline and _alive(child):
+        time.sleep(0.05)
+    assert not _alive(child)
+    assert marker.exists() != child_ignores_sigint

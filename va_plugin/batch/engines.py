@@ -12,8 +12,6 @@ from __future__ import annotations
 
 import os
 import signal
-import threading
-import time
 from collections.abc import Callable, Sequence
 from concurrent.futures import FIRST_COMPLETED, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -23,22 +21,17 @@ from typing import Any
 
 from va_plugin.batch.job import ObjectJob, failed_record, run_object
 from va_plugin.errors import ConfigError
+from va_plugin.utils.interrupts import interrupt_when_orphaned
 
 OnDone = Callable[[dict[str, Any]], None]
 ENGINES = ("local", "ray")
-PARENT_POLL_SECONDS = 1.0
 
 
 # -- local ----------------------------------------------------------------------------------------------
-def _watch_parent(parent: int) -> None:
-    while os.getppid() == parent:
-        time.sleep(PARENT_POLL_SECONDS)
-    os._exit(1)  # the batch is gone: stop before a resumed batch trains the same run folder
-
-
 def _start_worker(parent: int, started) -> None:
     signal.signal(signal.SIGINT, signal.SIG_IGN)
-    threading.Thread(target=_watch_parent, args=(parent,), daemon=True).start()
+    # the batch gone: end at once, before a resumed batch trains the same run folder
+    interrupt_when_orphaned(parent, grace_seconds=0.0)
     global _STARTED
     _STARTED = started
 

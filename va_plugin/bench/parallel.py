@@ -6,7 +6,8 @@ once. Rows are handed out in plan order; only the main process writes the result
 
 An interrupt makes every running row save a checkpoint and stop. A worker acts on the first interrupt of
 a row only (a second cannot cut its checkpoint short) and ignores interrupts between rows; a row handed
-out just before sees the ``stopping`` event and does not start.
+out just before sees the ``stopping`` event and does not start. A worker whose main process was killed
+(no chance to interrupt it) interrupts its own row the same way and ends.
 """
 
 from __future__ import annotations
@@ -30,6 +31,7 @@ import torch
 from va_plugin.bench.presets import EvalSettings
 from va_plugin.bench.rows import RowSpec, run_row
 from va_plugin.errors import one_line_warning
+from va_plugin.utils.interrupts import interrupt_when_orphaned
 
 STOP_SECONDS = 120.0
 """How long interrupted rows get to save their checkpoints before their workers are terminated."""
@@ -62,11 +64,12 @@ def _interrupt_once(signum, frame) -> None:
     raise KeyboardInterrupt
 
 
-def _serve(conn, stopping, threads: int) -> None:
-    """A worker's life: rows from ``conn`` until None (or the main process is gone), each answered with
-    ("done", result), ("interrupted",) or ("error", exception, traceback text)."""
+def _serve(conn, stopping, threads: int, parent: int) -> None:
+    """A worker's life: rows from ``conn`` until None (or the main process ``parent`` is gone), each
+    answered with ("done", result), ("interrupted",) or ("error", exception, traceback text)."""
     signal.signal(signal.SIGINT, signal.SIG_IGN)
     signal.pthread_sigmask(signal.SIG_UNBLOCK, {signal.SIGINT})  # blocked by the main process while starting
+    interrupt_when_orphaned(parent)
     warnings.showwarning = one_line_warning
     torch.set_num_threads(threads)
     while True:
@@ -76,7 +79,11 @@ def _serve(conn, stopping, threads: int) -> None:
             return
         if task is None:
             return
-        conn.send(_run(task, stopping))
+        answer = _run(task, stopping)
+        try:
+            conn.send(answer)
+        except OSError:  # the main process is gone
+            return
 
 
 def _run(task: RowTask, stopping) -> tuple:
@@ -103,7 +110,7 @@ def _run(task: RowTask, stopping) -> tuple:
 class _Worker:
     def __init__(self, context, stopping, threads: int, number: int) -> None:
         self.conn, child = context.Pipe()
-        self.process = context.Process(target=_serve, args=(child, stopping, threads), daemon=True,
+        self.process = context.Process(target=_serve, args=(child, stopping, threads, os.getpid()), daemon=True,
                                        name=f"bench-worker-{number}")
         # started with SIGINT blocked (the mask survives exec) so an interrupt during its imports cannot
         # kill it; _serve unblocks it and _run turns it on for each row.

@@ -6,7 +6,8 @@ Some imports (trimesh, open3d) catch a KeyboardInterrupt and carry on broken; in
 :func:`terminate_as_interrupt` SIGTERM (``kill``, batch time limits) raises KeyboardInterrupt, so it
 takes Ctrl-C's way out (a checkpoint is saved, workers are interrupted and waited for). Inside
 :func:`signals_as_requests` (the training loop) the first SIGINT or SIGTERM only asks the loop to stop
-when the step ends; :func:`signal_plan` reads the test hook that sends them at chosen steps.
+when the step ends; :func:`signal_plan` reads the test hook that sends them at chosen steps. A worker
+process calls :func:`interrupt_when_orphaned` so that its main process's death stops it as Ctrl-C would.
 """
 
 from __future__ import annotations
@@ -15,6 +16,7 @@ import contextlib
 import os
 import signal
 import threading
+import time
 from collections.abc import Callable, Iterator
 
 
@@ -100,6 +102,31 @@ def _hand_on(signum: int, frame, handler) -> None:
     elif handler is signal.SIG_DFL:
         signal.signal(signum, signal.SIG_DFL)
         os.kill(os.getpid(), signum)
+
+
+ORPHAN_POLL_SECONDS = 1.0
+"""How often :func:`interrupt_when_orphaned` looks for its main process."""
+ORPHAN_GRACE_SECONDS = 120.0
+"""How long an orphaned worker gets, once interrupted, to save its checkpoint and end by itself."""
+
+
+def interrupt_when_orphaned(parent: int, poll_seconds: float = ORPHAN_POLL_SECONDS,
+                            grace_seconds: float = ORPHAN_GRACE_SECONDS) -> threading.Thread:
+    """Watch from a daemon thread for the process ``parent`` to end (this process re-parented to another),
+    then send this process SIGINT, as Ctrl-C would (a training run saves a checkpoint at the end of its
+    step and stops), and end it if it is still alive ``grace_seconds`` later. For worker processes whose
+    main process may be killed without a chance to stop them."""
+
+    def watch() -> None:
+        while os.getppid() == parent:
+            time.sleep(poll_seconds)
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(grace_seconds)
+        os._exit(130)
+
+    thread = threading.Thread(target=watch, name="orphan-watch", daemon=True)
+    thread.start()
+    return thread
 
 
 SIGNAL_POINTS = ("start", "mid", "end")
