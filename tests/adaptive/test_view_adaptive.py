@@ -448,3 +448,23 @@ def test_the_regularizers_gradient_equals_a_second_pass_on_detached_features():
     (attention_entropy(reg_alpha).sum() + feature_consistency(reg_tokens).sum()).backward()
     assert flat.grad is None or not bool(flat.grad.any())
     assert any(bool(p.grad.abs().sum() > 0) for p in params)
+
+
+def test_the_regularizers_pass_with_frozen_branches_trains_the_attention_alone():
+    """Parameters that do not require a gradient get none, and the others still get theirs."""
+    from va_plugin.adaptive.field import _ParametersOnly
+    from va_plugin.adaptive.losses import feature_consistency
+
+    torch.manual_seed(4)
+    field = ViewAdaptiveFieldConfig(branch_width=8, attention_dim=8).setup(num_train_views=3)
+    with torch.no_grad():  # branches that disagree, and an output projection that counts
+        for p in (*field.branches.parameters(), field.attention.out.weight):
+            p.normal_(0.0, 0.3)
+    for p in field.branches.parameters():
+        p.requires_grad_(False)
+    params = (*field.branches.parameters(), *field.attention.parameters())
+    tokens, alpha = field.attention(field.branches.forward_all(torch.randn(6, field.feature_dim)))
+    reg_tokens, _ = _ParametersOnly.apply(tokens, alpha, *params)
+    feature_consistency(reg_tokens).sum().backward()
+    assert all(p.grad is None for p in field.branches.parameters())
+    assert field.attention.out.weight.grad is not None and bool(field.attention.out.weight.grad.abs().sum() > 0)

@@ -382,12 +382,16 @@ class _ParametersOnly(torch.autograd.Function):
 
     @staticmethod
     def backward(ctx, grad_tokens, grad_alpha):
-        used = [(t, g) for t, g in zip(ctx.graph, (grad_tokens, grad_alpha)) if g is not None]
-        grads = (None,) * len(ctx.params)
-        if used:
+        used = [(t, g) for t, g in zip(ctx.graph, (grad_tokens, grad_alpha)) if g is not None and t.requires_grad]
+        grads: list[torch.Tensor | None] = [None] * len(ctx.params)
+        wanted = [k for k, p in enumerate(ctx.params) if p.requires_grad]
+        if used and wanted:
             outputs, cotangents = zip(*used)
             # the forward's graph is kept: the colors' gradient runs through it after this
-            grads = torch.autograd.grad(outputs, ctx.params, cotangents, retain_graph=True, allow_unused=True)
+            found = torch.autograd.grad(outputs, [ctx.params[k] for k in wanted], cotangents, retain_graph=True,
+                                        allow_unused=True)
+            for k, grad in zip(wanted, found):
+                grads[k] = grad
         return None, None, *grads
 
 
