@@ -233,3 +233,36 @@ def test_denormals_flushed_holds_for_the_block_only(ops):
     assert bool((tiny * 1.0 == tiny).all())  # off after the block: scipy and the rest see IEEE floats
     with hash_kernel.denormals_flushed(False):
         assert bool((tiny * 1.0 == tiny).all())
+
+
+def test_denormals_flushed_blocks_nest(ops):
+    """An inner block's end leaves the flushing on for the rest of the outer block (a render inside a
+    training step's callbacks must not switch the step's flushing off)."""
+    tiny = torch.full((1 << 16,), 1e-39)
+    with hash_kernel.denormals_flushed():
+        with hash_kernel.denormals_flushed():
+            assert int(torch.count_nonzero(tiny * 1.0)) == 0
+        assert int(torch.count_nonzero(tiny * 1.0)) == 0
+    assert bool((tiny * 1.0 == tiny).all())
+
+
+def test_a_field_render_flushes_denormals_on_the_cpu(ops, monkeypatch):
+    """render_view (held-out views, turntables, the inconsistency maps) renders with denormals flushed:
+    the field far from the surface underflows, and the slow path doubled the time of held-out renders."""
+    from va_plugin.data.rigs import orbit_cameras
+    from va_plugin.export.render import render_view
+
+    seen = []
+
+    class Model(torch.nn.Module):
+        def __init__(self):
+            super().__init__()
+            self.weight = torch.nn.Parameter(torch.zeros(1))
+
+        def render_rays(self, rays, keys):
+            seen.append(float(torch.tensor(1e-30) * torch.tensor(1e-10)))
+            return {"rgb": torch.zeros(len(rays.origins), 3)}
+
+    image = render_view(Model(), orbit_cameras([0.0], 30.0, resolution=8), 0)
+    assert image.shape == (8, 8, 3) and seen == [0.0]
+    assert float(torch.tensor(1e-30) * torch.tensor(1e-10)) > 0.0  # off again afterwards

@@ -13,6 +13,7 @@ import torch
 from va_plugin.cameras import Cameras
 from va_plugin.data.images import write_image
 from va_plugin.data.rigs import orbit_cameras
+from va_plugin.fields.encodings.hash_kernel import denormals_flushed
 from va_plugin.raycast import MeshRenderer
 from va_plugin.rays import RayBundle
 from va_plugin.utils.progress import progress_bar
@@ -26,12 +27,14 @@ def render_view(model, cameras: Cameras, index: int, as_view: int = -1, keys=Non
     training view ``as_view``'s own path (its branch, for view-adaptive models) when ``as_view >= 0``.
     With ``keys`` (outputs of the model, e.g. ``("rgb", "rgb_canonical")`` or ``("accumulation",)``), a list
     of those images ``[H, W, C]`` from the same render pass."""
-    cameras = cameras.to(next(model.parameters()).device)
+    device = next(model.parameters()).device
+    cameras = cameras.to(device)
     views, rows, cols = cameras.pixel_grid(index)
     origins, directions = cameras.generate_rays(index, rows, cols)
     rays = RayBundle(origins, directions, torch.full_like(views, as_view))
     wanted = ("rgb",) if keys is None else tuple(keys)
-    outputs = model.render_rays(rays, keys=wanted)
+    with denormals_flushed(device.type == "cpu"):  # far from the surface the field underflows: same images
+        outputs = model.render_rays(rays, keys=wanted)
     images = [outputs[k].reshape(cameras.height, cameras.width, -1).cpu().numpy() for k in wanted]
     return images[0] if keys is None else images
 

@@ -106,19 +106,31 @@ def flush_denormals(on: bool = True) -> bool:
     return bool(torch.set_flush_denormal(on))
 
 
+_flush_lock = threading.Lock()
+_flush_depth = 0  # how many denormals_flushed blocks are open
+
+
 @contextmanager
 def denormals_flushed(enabled: bool = True) -> Iterator[None]:
-    """Within the block, :func:`flush_denormals` is on; after it, off again (IEEE behaviour), so that code
-    outside it runs as it expects (scipy's KD-tree crashes on some inputs with denormals flushed).
+    """Within the block, :func:`flush_denormals` is on; after the outermost such block, off again (IEEE
+    behaviour), so that code outside runs as it expects (scipy's KD-tree crashes on some inputs with
+    denormals flushed). Blocks nest: an inner one leaves the flushing on for the rest of the outer one.
     ``enabled=False``: nothing changes (GPU work)."""
+    global _flush_depth
     if not enabled:
         yield
         return
-    flush_denormals(True)
+    with _flush_lock:
+        if _flush_depth == 0:
+            flush_denormals(True)
+        _flush_depth += 1
     try:
         yield
     finally:
-        flush_denormals(False)
+        with _flush_lock:
+            _flush_depth -= 1
+            if _flush_depth == 0:
+                flush_denormals(False)
 
 
 def wait_seconds() -> float:
