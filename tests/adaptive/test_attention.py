@@ -133,3 +133,20 @@ def test_own_branches_give_the_same_bits_as_advanced_indexing(n_samples):
         results.append([out.detach(), x.grad] + [p.grad for p in branches.parameters()])
     for fast, plain in zip(*results):
         assert torch.equal(fast, plain)
+
+
+def test_own_branches_of_one_view_run_one_branch(monkeypatch):
+    """A render of one training view sends its samples through that view's branch alone (one block, not
+    n), with the bits of the padded all-views block."""
+    torch.manual_seed(5)
+    branches = ViewBranches(n_views=16, feature_dim=8, width=12, n_layers=3)
+    with torch.no_grad():
+        for p in branches.parameters():
+            p.normal_()
+    features, views = torch.randn(50, 8), torch.full((50,), 9)
+    reference = _own_by_advanced_indexing(branches, features, views)
+    blocks = []
+    mlp = branches._mlp
+    monkeypatch.setattr(branches, "_mlp", lambda x, chosen=None: blocks.append(x.shape[0]) or mlp(x, chosen))
+    assert torch.equal(branches.forward_own(features, views), reference)
+    assert blocks == [1]

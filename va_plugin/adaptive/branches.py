@@ -46,10 +46,13 @@ class ViewBranches(nn.Module):
             self.biases.append(nn.Parameter(bias))
 
     @timed("mlp")
-    def _mlp(self, x: torch.Tensor) -> torch.Tensor:
-        """``[n_views, m, D] -> [n_views, m, D]``: branch k applied to row block k."""
+    def _mlp(self, x: torch.Tensor, views: torch.Tensor | None = None) -> torch.Tensor:
+        """``[k, m, D] -> [k, m, D]``: row block j through branch ``views[j]`` (``views`` None: all n
+        branches, block j through branch j)."""
         last = len(self.weights) - 1
         for k, (w, b) in enumerate(zip(self.weights, self.biases)):
+            if views is not None:
+                w, b = w.index_select(0, views), b.index_select(0, views)
             x = torch.baddbmm(b, x, w)
             if k < last:
                 x = torch.relu(x)
@@ -62,19 +65,24 @@ class ViewBranches(nn.Module):
 
     def forward_own(self, features: torch.Tensor, views: torch.Tensor) -> torch.Tensor:
         """Only the branch of each sample's own view: ``[S, D], views [S] in [0, n) -> [S, D]``, as one
-        batched matmul over the samples grouped by view into a padded ``[n_views, max_count, D]`` block.
-        Each sample's row in the block is found once; the features go in and the outputs come out by
-        row copies."""
+        batched matmul over the samples grouped by view into a padded ``[k, max_count, D]`` block, one
+        block per view that has samples (a render of one view runs one branch, not n). Each sample's row
+        in the block is found once; the features go in and the outputs come out by row copies."""
         if features.shape[0] == 0:
             return features
         order = torch.argsort(views)
         sorted_views = views[order]
         counts = torch.bincount(sorted_views, minlength=self.n_views)
+        present = None
+        if not bool((counts > 0).all()):  # compact the views that have samples into blocks 0..k-1
+            present = counts.nonzero().squeeze(-1)
+            sorted_views = (torch.cumsum(counts > 0, 0) - 1)[sorted_views]
+            counts = counts.index_select(0, present)
         starts = torch.cumsum(counts, 0) - counts
         width = int(counts.max())
         slot = torch.arange(views.shape[0], device=views.device) - starts[sorted_views]
         row = torch.empty_like(order).index_copy_(0, order, sorted_views * width + slot)
         dim = features.shape[-1]
-        padded = features.new_zeros(self.n_views * width, dim).index_copy(0, row, features)
-        out = self._mlp(padded.view(self.n_views, width, dim)).view(-1, dim).index_select(0, row)
+        padded = features.new_zeros(counts.shape[0] * width, dim).index_copy(0, row, features)
+        out = self._mlp(padded.view(counts.shape[0], width, dim), present).view(-1, dim).index_select(0, row)
         return features + out
