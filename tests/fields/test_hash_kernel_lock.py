@@ -24,7 +24,7 @@ def extensions(tmp_path, monkeypatch):
 
     def load(name, **kwargs):
         # torch's FileBaton sleeps while a build folder's lock exists: a stale one would be a hang
-        locks = [p for p in tmp_path.rglob("lock") if p.parent.name == hash_kernel.NAME]
+        locks = [p for p in tmp_path.rglob("lock") if p.parent.name.startswith(hash_kernel.NAME)]
         assert not locks, f"torch would wait forever on {locks}"
         calls.append(name)
 
@@ -57,7 +57,8 @@ def test_a_lock_left_by_a_killed_build_is_removed_with_a_note(extensions, capsys
     holder.wait(10)
     holder.stdout.close()
     assert hash_kernel._build(verbose=False) is not None
-    assert calls == [hash_kernel.NAME] and not any(lock.exists() for lock in locks)
+    assert calls == [hash_kernel.build_name(hash_kernel.SOURCE.read_bytes())]
+    assert not any(lock.exists() for lock in locks)
     err = capsys.readouterr().err
     for lock in locks:
         assert f"removed {lock}, left by an interrupted build of the hash grid's CPU kernels" in err
@@ -67,7 +68,7 @@ def test_a_lock_left_by_a_killed_build_is_removed_with_a_note(extensions, capsys
 def test_a_build_another_process_holds_too_long_falls_back(extensions, monkeypatch, capsys):
     root, calls = extensions
     monkeypatch.setenv(hash_kernel.ENV_WAIT, "0.4")
-    live = root / hash_kernel.NAME / "lock"  # the live builder's own lock: not ours to remove
+    live = root / hash_kernel.build_name(hash_kernel.SOURCE.read_bytes()) / "lock"  # the live builder's: not ours
     live.parent.mkdir()
     live.touch()
     fd = os.open(root / hash_kernel.BUILD_LOCK, os.O_RDWR | os.O_CREAT)
@@ -91,3 +92,31 @@ def test_the_wait_comes_from_the_environment(monkeypatch):
     assert hash_kernel.wait_seconds() == 12.5
     monkeypatch.setenv(hash_kernel.ENV_WAIT, "soon")
     assert hash_kernel.wait_seconds() == hash_kernel.DEFAULT_WAIT_SECONDS
+
+
+def test_checkouts_at_different_paths_share_one_build(tmp_path, monkeypatch):
+    """The build compiles a copy of the source whose path depends on the source alone: a second checkout
+    (the same source elsewhere) gets the same name and path, and the copy is not rewritten (its age would
+    make ninja rebuild); a changed source gets a build of its own."""
+    root = tmp_path / "extensions"
+    text = hash_kernel.SOURCE.read_bytes()
+    names = []
+    for checkout in ("a", "b"):
+        source = tmp_path / checkout / "hash_kernel.cpp"
+        source.parent.mkdir()
+        source.write_bytes(text)
+        monkeypatch.setattr(hash_kernel, "SOURCE", source)
+        names.append(hash_kernel.staged_source(root))
+        if checkout == "a":
+            first_write = names[0][1].stat().st_mtime_ns
+            time.sleep(0.01)
+    assert names[0] == names[1] and names[0][1].read_bytes() == text
+    assert names[0][1].stat().st_mtime_ns == first_write
+    assert names[0][1].parent.parent == root and names[0][0].startswith(hash_kernel.NAME + "_")
+    changed = tmp_path / "c" / "hash_kernel.cpp"
+    changed.parent.mkdir()
+    changed.write_bytes(text + b"// changed\n")
+    monkeypatch.setattr(hash_kernel, "SOURCE", changed)
+    other, staged = hash_kernel.staged_source(root)
+    assert other != names[0][0] and staged.read_bytes() == changed.read_bytes()
+    assert names[0][1].read_bytes() == text  # the first build's copy is left alone

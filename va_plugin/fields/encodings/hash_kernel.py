@@ -10,6 +10,9 @@ kernels to.
 The extension is compiled once per machine with ``torch.utils.cpp_extension`` (a C++ compiler and
 ninja are needed; about a minute) and cached in torch's extension folder. If it cannot be built, a
 warning says why and the PyTorch path is used. ``VA_PLUGIN_HASH_KERNEL=0`` turns the kernels off.
+The build is named by a digest of the source and the flags, and compiles a copy of the source kept
+beside it: checkouts of the package at different paths share one build, and a changed source gets a
+build of its own instead of rebuilding another checkout's.
 
 Builds are serialised by an advisory lock (``va_hash_grid.build-lock`` in the extension folder, held with
 ``flock``, which the system releases when its holder dies). torch's own ``lock`` file in the build folder
@@ -21,6 +24,7 @@ PyTorch path is used.
 
 from __future__ import annotations
 
+import hashlib
 import os
 import sys
 import threading
@@ -80,10 +84,11 @@ def _build(verbose: bool):
                               f"(set {ENV_WAIT} to wait longer)", RuntimeWarning, stacklevel=3)
                 return None
             remove_stale_locks(root)
-            if not _built_before(str(root)):
+            name, source = staged_source(root)
+            if not _built_before(root, name):
                 print("compiling the hash grid's CPU kernels (once per machine, about a minute)", file=sys.stderr,
                       flush=True)
-            cpp_extension.load(name=NAME, sources=[str(SOURCE)], extra_cflags=list(CFLAGS),
+            cpp_extension.load(name=name, sources=[str(source)], extra_cflags=list(CFLAGS),
                                extra_ldflags=["-fopenmp"], is_python_module=False, verbose=verbose)
         return torch.ops.va_hash_grid
     except Exception as error:  # a missing compiler or ninja, a read-only cache folder, ...
@@ -181,11 +186,36 @@ def build_lock(root: Path, timeout: float) -> Iterator[int | None]:
         os.close(fd)
 
 
+def build_name(text: bytes) -> str:
+    """The extension's name for kernel source ``text``: :data:`NAME` and a digest of the source and the flags."""
+    digest = hashlib.sha256(text + "\0".join(CFLAGS).encode()).hexdigest()[:12]
+    return f"{NAME}_{digest}"
+
+
+def staged_source(root: Path) -> tuple[str, Path]:
+    """The extension's name (:func:`build_name`) and the copy of :data:`SOURCE` it is compiled from,
+    ``root/<name>-source/hash_kernel.cpp``: a path that depends on the source and not on where the package
+    lies. Written (atomically) only when missing or different, so an existing build stays up to date."""
+    text = SOURCE.read_bytes()
+    name = build_name(text)
+    staged = root / f"{name}-source" / SOURCE.name
+    try:
+        current = staged.read_bytes()
+    except OSError:
+        current = None
+    if current != text:
+        staged.parent.mkdir(parents=True, exist_ok=True)
+        partial = staged.with_name(f"{staged.name}.{os.getpid()}.partial")
+        partial.write_bytes(text)
+        os.replace(partial, staged)
+    return name, staged
+
+
 def remove_stale_locks(root: Path) -> list[Path]:
     """Remove torch's ``lock`` files of this extension's build folders under ``root`` (call with the build
     lock held: no live build owns them, they are left by a build that was killed), each with a note."""
     removed = []
-    for lock in [root / NAME / "lock", *root.glob(f"*/{NAME}/lock")]:
+    for lock in sorted({*root.glob(f"{NAME}*/lock"), *root.glob(f"*/{NAME}*/lock")}):
         try:
             lock.unlink()
         except FileNotFoundError:
@@ -200,14 +230,9 @@ def remove_stale_locks(root: Path) -> list[Path]:
 MAX_HASHMAP_SIZE = 2**31
 
 
-def _built_before(root: str) -> bool:
-    """Whether torch's extension folder holds a build newer than the source (a heuristic for the message)."""
-    try:
-        built = [p.stat().st_mtime for p in Path(root).glob(f"*/{NAME}*/{NAME}*.so")]
-        built += [p.stat().st_mtime for p in Path(root).glob(f"{NAME}*/{NAME}*.so")]
-        return bool(built) and max(built) >= SOURCE.stat().st_mtime
-    except OSError:
-        return False
+def _built_before(root: Path, name: str) -> bool:
+    """Whether torch's extension folder holds a build of ``name`` (a heuristic for the message)."""
+    return any(root.glob(f"{name}/{name}*.so")) or any(root.glob(f"*/{name}/{name}*.so"))
 
 
 def usable(x01: torch.Tensor, table: torch.Tensor, hashmap_size: int) -> bool:
