@@ -37,6 +37,8 @@ from pathlib import Path
 import torch
 from torch.autograd.function import once_differentiable
 
+from va_plugin.utils.files import replace_atomic
+
 try:
     import fcntl
 except ImportError:  # not POSIX: builds take no advisory lock
@@ -204,10 +206,7 @@ def staged_source(root: Path) -> tuple[str, Path]:
     except OSError:
         current = None
     if current != text:
-        staged.parent.mkdir(parents=True, exist_ok=True)
-        partial = staged.with_name(f"{staged.name}.{os.getpid()}.partial")
-        partial.write_bytes(text)
-        os.replace(partial, staged)
+        replace_atomic(staged, lambda handle: handle.write(text))
     return name, staged
 
 
