@@ -74,7 +74,8 @@ def run_one(job: dict[str, Any]) -> dict[str, Any]:
 
 
 def train_and_score(job: dict[str, Any]) -> dict[str, Any]:
-    """Train the default on one scene (one torch thread), then evaluate its final state."""
+    """Train the method's default (``job["method"]``, ``neus`` when absent) on one scene (one torch thread),
+    then evaluate its final state."""
     import torch
 
     from va_plugin.config import apply_override
@@ -82,7 +83,7 @@ def train_and_score(job: dict[str, Any]) -> dict[str, Any]:
     from va_plugin.registry import get_method
 
     torch.set_num_threads(1)
-    config = get_method("neus").make_config()
+    config = get_method(job.get("method", "neus")).make_config()
     config.pipeline.datamanager.dataparser.data = Path(job["scene"])
     config.output_dir = Path(job["run_dir"])
     config.progress = False
@@ -94,7 +95,8 @@ def train_and_score(job: dict[str, Any]) -> dict[str, Any]:
     train_run(config, resume=True)
     scores, state = score(job["run_dir"])
     wall = time.perf_counter() - started
-    return {**{k: job[k] for k in ("key", "object", "views", "level")},
+    passed = ("key", "object", "views", "level", "arm", "arm_overrides", "method", "seed", "commit")
+    return {**{k: job[k] for k in passed if k in job},
             "variant": job.get("variant", ""), **scores, "steps": int(state["step"]),
             "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}
 
