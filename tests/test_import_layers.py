@@ -3,8 +3,9 @@ imports only from its own floor or below. The import graph has no circle, and ev
 own in a fresh interpreter with its dependencies imported first (dependency order).
 
 Imports inside functions count as edges too (an import moved into a function to dodge a circle or a floor
-is still one); imports under ``if TYPE_CHECKING:`` do not (they never run). Imports inside functions are
-few, and each says why on its line."""
+is still one); imports under ``if TYPE_CHECKING:`` do not count for the floors (they never run), but they
+make circles too: two modules that name each other's types share types that belong a floor down.
+Imports inside functions are few, and each says why on its line."""
 
 from __future__ import annotations
 
@@ -34,11 +35,12 @@ def _is_type_checking(node: ast.If) -> bool:
         (isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING")
 
 
-def _imported_names(tree: ast.AST, module: str, is_package: bool) -> set[str]:
+def _imported_names(tree: ast.AST, module: str, is_package: bool, type_only: bool = False) -> set[str]:
+    """The names a module imports; ``type_only``: those under ``if TYPE_CHECKING:`` too."""
     names: set[str] = set()
 
     def visit(node: ast.AST) -> None:
-        if isinstance(node, ast.If) and _is_type_checking(node):
+        if isinstance(node, ast.If) and _is_type_checking(node) and not type_only:
             for child in node.orelse:
                 visit(child)
             return
@@ -60,13 +62,14 @@ def _imported_names(tree: ast.AST, module: str, is_package: bool) -> set[str]:
     return names
 
 
-def import_graph() -> dict[str, set[str]]:
-    """module -> the modules of our packages it imports."""
+def import_graph(type_only: bool = False) -> dict[str, set[str]]:
+    """module -> the modules of our packages it imports (``type_only``: for type annotations too)."""
     modules = _modules()
     graph: dict[str, set[str]] = {}
     for name, path in modules.items():
         tree = ast.parse(path.read_text(encoding="utf-8"))
-        edges = {target for target in _imported_names(tree, name, path.name == "__init__.py") if target in modules}
+        edges = {target for target in _imported_names(tree, name, path.name == "__init__.py", type_only)
+                 if target in modules}
         # a module's parent packages run first, but an ``__init__`` that imports its own submodules is
         # no circle: only the imports a file writes count
         edges -= {".".join(name.split(".")[:i]) for i in range(1, name.count(".") + 1)}
@@ -124,6 +127,12 @@ def test_no_import_circle():
     assert not cycle, "import circle: " + " -> ".join(cycle)
 
 
+def test_no_circle_through_type_only_imports_either():
+    """Two modules that name each other's types belong on one floor: the shared types move down."""
+    cycle = find_cycle(import_graph(type_only=True))
+    assert not cycle, "circle through type-only imports: " + " -> ".join(cycle)
+
+
 def test_every_module_imports_in_dependency_order_in_a_fresh_interpreter():
     order = dependency_order(import_graph())
     script = ("import importlib, sys\n"
@@ -136,8 +145,8 @@ def test_every_module_imports_in_dependency_order_in_a_fresh_interpreter():
 
 FLOORS = [
     ("va_plugin.errors", "va_plugin.config", "va_plugin.rays", "va_plugin.cameras", "va_plugin.utils",
-     "va_plugin.registry", "method_configs"),
-    ("va_plugin.fields", "va_plugin.model_components", "va_plugin.raycast", "va_plugin.engine.callbacks"),
+     "va_plugin.registry", "va_plugin.callbacks", "method_configs"),
+    ("va_plugin.fields", "va_plugin.model_components", "va_plugin.raycast"),
     ("va_plugin.models", "va_plugin.adaptive", "va_plugin.data"),
     ("va_plugin.pipelines", "va_plugin.engine"),
     ("va_plugin.export", "va_plugin.eval"),

@@ -35,11 +35,11 @@ from typing import Any
 import torch
 import trimesh
 
+from va_plugin.callbacks import TrainingCallback
 from va_plugin.config import apply_override, validate_config
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
-from va_plugin.engine.callbacks import TrainingCallback
 from va_plugin.engine.run_folder import check_output_file, claim_run_folder, writing_into_run
 from va_plugin.engine.trainer import (
     TrainerConfig,
@@ -201,7 +201,7 @@ def input_summary(pipeline: Pipeline, run_dir: Path) -> str | None:
 
 def preset_of(config: TrainerConfig) -> str:
     """The preset a config was built from (``default`` for a config built by hand)."""
-    return getattr(config, "preset_name", "default")
+    return config.preset_name
 
 
 def check_training_memory(config: TrainerConfig) -> None:
@@ -246,7 +246,7 @@ def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = Fals
     folder's newest checkpoint, when the method, preset, data and options are the run's own; without it, a
     folder that holds checkpoints is refused. ``progress(step, total, losses)`` is called after each step.
     ``on_message(line)`` gets the lines a user should see (the inputs found, a resume). ``callbacks``: more
-    :class:`~va_plugin.engine.callbacks.TrainingCallback` s for the trainer, after the model's own (a
+    :class:`~va_plugin.callbacks.TrainingCallback` s for the trainer, after the model's own (a
     preview render every few hundred steps, say); one that changes no parameter and draws no random
     number leaves the training as it is. A run whose health guard intervened ends with a warning. Ctrl-C,
     SIGTERM or ``stop`` (a ``threading.Event`` set, or a callable returning True, polled between steps)

@@ -4,7 +4,7 @@ import pytest
 import torch
 from conftest import tiny_config
 
-from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
+from va_plugin.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback
 from va_plugin.engine.trainer import atomic_save, list_checkpoints, load_checkpoint, make_adam
 from va_plugin.errors import CheckpointError, ConfigError
 from va_plugin.registry import discover_methods
@@ -152,7 +152,7 @@ def test_nan_batch_is_skipped_with_one_warning(tiny_scene, tmp_path):
 
 
 def test_callbacks_get_attributes_not_the_trainer_and_return_learning_rate_factors(tiny_scene, tmp_path):
-    from va_plugin.engine.callbacks import TrainingCallbackAttributes
+    from va_plugin.callbacks import TrainingCallbackAttributes
 
     trainer = tiny_config("neus", tiny_scene, tmp_path / "run", steps=2).setup()
     seen = []

@@ -52,6 +52,7 @@ class _DensityBall(torch.nn.Module):
         self.config = NGPModelConfig(density_threshold=10.0, mesh_smoothing=smoothing)
         self.scene = SimpleNamespace(scene_radius=1.0)
         self.fill_mesh_cavities = fill
+        self.mesh_field_lipschitz = None  # a density, not a signed distance
         self.prepare_mesh_grid = NGPModel.prepare_mesh_grid.__get__(self)
 
     def mesh_field(self, points):

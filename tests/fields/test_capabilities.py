@@ -36,6 +36,7 @@ def test_each_method_field_declares_what_it_implements(name):
     torch.manual_seed(0)
     f = _method_field(name)
     assert isinstance(f, Field) and f.geometry_kind in ("sdf", "density")
+    assert f.current_phase == 1  # every field starts in phase 1; one without phases stays there
     assert isinstance(f.analytic_sdf_gradient, bool) and isinstance(f.has_view_branches, bool)
     points = torch.rand(5, 3) - 0.5
     if f.analytic_sdf_gradient:  # declared: implemented, and it runs on the field's network

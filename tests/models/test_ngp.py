@@ -135,3 +135,13 @@ def test_mesh_export_after_brief_training(tiny_scene, tmp_path):
     model.config.density_threshold = float(density.median())
     mesh = extract_mesh(model, resolution=24)
     assert len(mesh.faces) > 0 and mesh.visual.vertex_colors.shape[0] == len(mesh.vertices)
+
+
+def test_the_memory_estimate_reads_each_model_configs_own_samples():
+    from va_plugin.models.base import ModelConfig
+    from va_plugin.models.neus import NeuSModelConfig
+    from va_plugin.models.ngp import NGPModelConfig
+
+    assert NGPModelConfig(n_samples=40).samples_per_ray() == 40
+    assert NeuSModelConfig(n_samples=24, n_importance=16).samples_per_ray() == 40
+    assert ModelConfig().samples_per_ray() == 0  # a model config that does not sample rays: no estimate

@@ -24,7 +24,7 @@ CHILD = textwrap.dedent("""
     torch.set_num_threads(1)
     from conftest import tiny_config
     from va_plugin.engine import trainer as trainer_module
-    from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback
+    from va_plugin.callbacks import BEFORE_STEP, TrainingCallback
 
     config = tiny_config({method!r}, {scene!r}, {run!r}, steps={steps}, checkpoint_every={every}, **{overrides!r})
     trainer = config.setup()

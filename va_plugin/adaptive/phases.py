@@ -12,17 +12,41 @@ from __future__ import annotations
 
 import warnings
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import Protocol
 
+import torch
+
+from va_plugin.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.config import resolve_reference
-from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
-
-if TYPE_CHECKING:  # the field builds its callbacks from here: no import back at run time
-    from va_plugin.adaptive.field import ViewAdaptiveField
 
 PRETRAIN, BRANCHES, FUSION = 1, 2, 3
 PHASE_NAMES = {PRETRAIN: "global pre-training", BRANCHES: "view-adaptive branches", FUSION: "self-attention fusion"}
 
+
+class PhaseOptions(Protocol):
+    """The options of a phased field that its callbacks read (``ViewAdaptiveFieldConfig`` has them)."""
+
+    pretrain_fraction: float
+    branch_fraction: float
+    shared_lr_scale: float
+    skip_consistent_scenes: bool
+    consistency_test: str
+    diagnostics_writer: str
+    diagnostics_scale: float
+
+
+class PhasedField(Protocol):
+    """What the phase callbacks read and set on a field (:class:`~va_plugin.adaptive.field.ViewAdaptiveField`
+    is one; it builds its callbacks here, so this module does not import it)."""
+
+    config: PhaseOptions
+    branches: torch.nn.Module | None
+    skipped: torch.Tensor  # bool [], persistent: the consistency test kept the run in phase 1
+
+    @property
+    def current_phase(self) -> int: ...
+
+    def set_phase(self, phase: int) -> None: ...
 
 
 def phase_at(step: int, schedule_steps: int, pretrain_fraction: float, branch_fraction: float) -> int:
@@ -34,7 +58,7 @@ def phase_at(step: int, schedule_steps: int, pretrain_fraction: float, branch_fr
     return FUSION
 
 
-def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
+def phase_callback(field: PhasedField) -> TrainingCallback:
     """The trainer callback that sets the field's phase; it returns the learning-rate factor of the
     shared field's optimizer groups (``shared_lr_scale`` once the branches train)."""
     cfg = field.config
@@ -54,7 +78,7 @@ def phase_callback(field: ViewAdaptiveField) -> TrainingCallback:
     return TrainingCallback(switch, BEFORE_STEP)
 
 
-def diagnostics_callback(field: ViewAdaptiveField) -> TrainingCallback:
+def diagnostics_callback(field: PhasedField) -> TrainingCallback:
     """After the last step, the attention heat map and the inconsistency maps go to the run folder."""
 
     def write(step: int, attributes: TrainingCallbackAttributes) -> None:

@@ -20,8 +20,8 @@ import cv2
 import numpy as np
 import torch
 
+from va_plugin.callbacks import TrainingCallbackAttributes
 from va_plugin.cameras import Cameras
-from va_plugin.engine.callbacks import TrainingCallbackAttributes
 from va_plugin.errors import VAError
 from va_plugin.export.fusion import harmonise
 from va_plugin.export.mesh import extract_mesh
@@ -123,6 +123,7 @@ class ColorCast:
 
     @property
     def log_gains(self) -> np.ndarray:
+        """``[n, 3]``: the log of each view's per-channel gain (gains floored at 1e-6)."""
         return np.log(np.clip(self.gains, 1e-6, None))
 
     @property

@@ -41,8 +41,8 @@ import torch
 from va_plugin.api import TrainingInterrupted, reconstruct
 from va_plugin.app.settings import AppSettings, RunOptions
 from va_plugin.app.uploads import Upload
+from va_plugin.callbacks import AFTER_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.data.images import resize, write_image
-from va_plugin.engine.callbacks import AFTER_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.engine.trainer import list_checkpoints
 from va_plugin.errors import VAError
 from va_plugin.export.render import render_view

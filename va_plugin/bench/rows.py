@@ -133,7 +133,7 @@ def evaluate_checkpoints(pipeline, run_dir: Path, scene_dir: Path, evaluation: E
 
 def _adaptive_ran(model) -> bool:
     """Whether the run reached the view-adaptive phases (False for original methods and skipped scenes)."""
-    return int(getattr(model.field, "current_phase", 1)) > 1
+    return model.field.current_phase > 1
 
 
 def run_row(row: RowSpec, config, scene_dir: Path, evaluation: EvalSettings, row_fingerprint: str,

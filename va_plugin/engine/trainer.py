@@ -19,8 +19,8 @@ import numpy as np
 import torch
 from tqdm import tqdm
 
+from va_plugin.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.config import InstantiateConfig, to_dict, validate_config
-from va_plugin.engine.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check_usable
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
@@ -49,6 +49,9 @@ class TrainerConfig(InstantiateConfig):
     _target: type = field(default_factory=lambda: Trainer)
     method_name: str = "unnamed"
     """Registered name of the method (checked when resuming)."""
+    preset_name = "default"  # no annotation, so not a field: no part of the config's digest or its file
+    """The preset the config was built from (``va_plugin.api.build_config`` sets it; the run folder's
+    manifest names it)."""
     pipeline: PipelineConfig = field(default_factory=PipelineConfig)
     """Data manager and model."""
     optimizers: dict[str, OptimizerConfig] = field(

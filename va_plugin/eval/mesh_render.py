@@ -22,13 +22,14 @@ class UnlitMeshRenderer(MeshRenderer):
     """A :class:`MeshRenderer` whose hits show their albedo as it is (no light)."""
 
     def shade(self, face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        """RGB ``[n, 3]`` in [0, 1] of ``n`` hits: their faces ``[n]`` and barycentric weights ``[n, 3]``."""
         corners = self.faces[face_ids]
         points = np.einsum("nk,nkc->nc", bary, self.rest_vertices[corners]).astype(np.float32)
         return np.clip(self.albedo(SurfaceHits(points, corners, bary.astype(np.float32))), 0.0, 1.0)
 
 
 class BakedTexture:
-    """Albedo of a :class:`va_plugin.export.texture.TexturedMesh`: its image sampled bilinearly at the hits'
+    """Albedo of a :class:`va_plugin.export.baked.TexturedMesh`: its image sampled bilinearly at the hits'
     UVs, with texel centres where the baker put them (``uv = ((c + 0.5) / S, 1 - (r + 0.5) / S)``)."""
 
     def __init__(self, textured) -> None:
@@ -36,13 +37,14 @@ class BakedTexture:
         self.image = textured.image
 
     def __call__(self, hits: SurfaceHits) -> np.ndarray:
+        """RGB ``[n, 3]`` of ``n`` hits."""
         uv = np.einsum("nk,nkc->nc", hits.barycentric, self.uv[hits.corners])
         h, w = self.image.shape[:2]
         return bilinear(self.image, uv[:, 0] * w - 0.5, (1.0 - uv[:, 1]) * h - 0.5)
 
 
 def textured_renderer(textured) -> UnlitMeshRenderer:
-    """A renderer of a :class:`va_plugin.export.texture.TexturedMesh`."""
+    """A renderer of a :class:`va_plugin.export.baked.TexturedMesh`."""
     import trimesh
 
     mesh = trimesh.Trimesh(textured.vertices, textured.faces, process=False)
@@ -88,7 +90,7 @@ def textured_mesh_metrics(pipeline, textured, image_scale: float = 1.0, max_view
 @small_numpy_pages()
 def textured_turntable(textured, out_dir: Path, n_frames: int = 24, resolution: int = 256,
                        progress: bool = True) -> Path:
-    """A turntable of a baked :class:`~va_plugin.export.texture.TexturedMesh` (ray cast, unlit, on white):
+    """A turntable of a baked :class:`~va_plugin.export.baked.TexturedMesh` (ray cast, unlit, on white):
     ``turntable.mp4`` and ``turntable.png`` (four frames side by side) in ``out_dir``; the video's path."""
 
     out_dir = Path(out_dir)

@@ -12,6 +12,7 @@ import trimesh
 from va_plugin.errors import VAError
 from va_plugin.export.frame import check_frame, frame_applies, frame_transform, write_frame_record
 from va_plugin.fields.encodings.hash_kernel import denormals_flushed
+from va_plugin.models.base import Model
 
 MESH_FORMATS = (".ply", ".obj", ".glb")
 
@@ -41,7 +42,8 @@ BLOCK = 2
 @torch.no_grad()
 def sample_distance_grid(fn, resolution: int, bound: float, radius: float, device: torch.device,
                          lipschitz: float, chunk: int = 65536) -> np.ndarray:
-    """The grid of :func:`sample_grid` for a signed distance ``fn`` whose gradient norm stays below
+    """The grid ``[resolution, resolution, resolution]`` (float32) of :func:`sample_grid` for a signed
+    distance ``fn`` (points ``[m, 3]`` -> ``[m]``) whose gradient norm stays below
     ``lipschitz``, evaluating ``fn`` only where a surface may pass: first at the corners of blocks of
     ``BLOCK^3`` cells, then at every point of the blocks whose corner values, widened by ``lipschitz``
     times the distance to the nearest corner, do not rule out a sign change, and that lie not wholly
@@ -92,7 +94,7 @@ def sample_distance_grid(fn, resolution: int, bound: float, radius: float, devic
     return values
 
 
-def extract_mesh(model, resolution: int = 128, bound: float | None = None, with_color: bool = True,
+def extract_mesh(model: Model, resolution: int = 128, bound: float | None = None, with_color: bool = True,
                  largest_component: bool = False) -> trimesh.Trimesh:
     """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound (a
     signed distance, ``model.mesh_field_lipschitz`` set, is evaluated only near its zero crossings), after
@@ -108,7 +110,7 @@ def extract_mesh(model, resolution: int = 128, bound: float | None = None, with_
     was_training = model.training
     model.eval()
     try:
-        lipschitz = getattr(model, "mesh_field_lipschitz", None)
+        lipschitz = model.mesh_field_lipschitz
         values = sample_grid(model.mesh_field, resolution, bound, device) if lipschitz is None else \
             sample_distance_grid(model.mesh_field, resolution, bound, radius, device, lipschitz)
     finally:

@@ -7,17 +7,14 @@ import json
 import uuid
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import cv2
 import numpy as np
 
 from va_plugin.data.images import write_image
 from va_plugin.errors import VAError
+from va_plugin.export.baked import BakeReport, TexturedMesh
 from va_plugin.export.frame import apply_transform, frame_record, frame_record_path, frame_transform
-
-if TYPE_CHECKING:
-    from va_plugin.export.texture import BakeReport, TexturedMesh
 
 TEXTURE_FORMATS = (".glb", ".obj")
 

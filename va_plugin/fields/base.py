@@ -78,7 +78,7 @@ class Field(nn.Module):
     The optional capabilities are declared here, with defaults for a field without them; models read the
     declarations instead of probing for attributes: ``analytic_sdf_gradient`` (``geometry_and_gradient``
     works), ``has_view_branches`` (the per-view wrapper: ``branches_active``, ``attention_matrix``),
-    ``bound`` and the hooks ``extra_losses``, ``training_callbacks`` and ``diagnostics``."""
+    ``bound``, ``current_phase`` and the hooks ``extra_losses``, ``training_callbacks`` and ``diagnostics``."""
 
     geometry_kind: str = "sdf"
     feature_dim: int = 0
@@ -89,6 +89,9 @@ class Field(nn.Module):
     """Whether the field is the view-adaptive wrapper (per-view branches, their phases and attention)."""
     bound: float | None = None
     """The field covers [-bound, bound]^3 (a hash grid's extent); None where it is not bounded."""
+    current_phase: int = 1
+    """The training phase the field is in (the paper's Sec. 3.4: 1 trains the shared field alone; the
+    view-adaptive wrapper moves to 2 and 3, a field without phases stays in 1)."""
 
     def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
         """``positions [..., 3]`` -> (SDF or raw density ``[..., 1]``, geometry feature ``[..., G]``)."""
@@ -125,8 +128,9 @@ class Field(nn.Module):
     def extra_losses(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor] | None = None,
                      color_loss: Callable[[torch.Tensor, torch.Tensor], torch.Tensor] | None = None
                      ) -> dict[str, torch.Tensor]:
-        """Loss terms of the field's own (e.g. the view-adaptive regularizers) from the model's ``outputs``,
-        the ``batch`` and the model's photometric loss; none by default."""
+        """Scalar loss terms ``[]`` of the field's own (e.g. the view-adaptive regularizers) from the model's
+        ``outputs``, the ``batch`` and the model's photometric loss (``[R, 3]`` against ``[R, 3]``); none by
+        default."""
         return {}
 
     def training_callbacks(self) -> list:
@@ -151,14 +155,17 @@ class MLP(nn.Module):
         self.out_activation = out_activation
 
     def features(self, x: torch.Tensor) -> torch.Tensor:
+        """The last hidden layer's output ``[..., width]`` of inputs ``[..., in_dim]``."""
         for layer in self.hidden:
             x = self.activation(layer(x))
         return x
 
     def head(self, h: torch.Tensor) -> torch.Tensor:
+        """The output layer (and its activation): ``[..., width]`` -> ``[..., out_dim]``."""
         y = self.out(h)
         return self.out_activation(y) if self.out_activation is not None else y
 
     def forward(self, x: torch.Tensor) -> torch.Tensor:
+        """``[..., in_dim]`` -> ``[..., out_dim]`` (``[..., width]`` when ``out_dim`` is 0)."""
         h = self.features(x)
         return h if self.out is None else self.head(h)

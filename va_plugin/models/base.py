@@ -36,8 +36,9 @@ class ModelConfig(InstantiateConfig):
     """Rays rendered at once when rendering whole images."""
 
     def samples_per_ray(self) -> int:
-        """The most samples a training ray evaluates with gradients (for the up-front memory estimate)."""
-        return int(getattr(self, "n_samples", 0)) + int(getattr(self, "n_importance", 0))
+        """The most samples a training ray evaluates with gradients (for the up-front memory estimate); a
+        model config that samples rays says how many (0: no estimate)."""
+        return 0
 
 
 ExtraLoss = Callable[[dict[str, torch.Tensor], dict[str, torch.Tensor], int], dict[str, torch.Tensor]]
@@ -77,10 +78,14 @@ class Model(nn.Module):
         Model.update_step(self, step)
 
     def get_outputs(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
+        """The ``R`` rays of ``ray_bundle`` rendered: ``rgb [R, 3]``, ``accumulation [R, 1]``, ``depth [R, 1]``,
+        and the model's own outputs (per-sample ones, such as ``weights``, packed over the samples evaluated)."""
         raise NotImplementedError
 
     def get_loss_dict(self, outputs: dict[str, torch.Tensor], batch: dict[str, torch.Tensor]
                       ) -> dict[str, torch.Tensor]:
+        """Scalar loss terms ``[]`` of ``outputs`` (:meth:`get_outputs`) against the ``batch`` of ``R`` rays:
+        ``rgb [R, 3]``, and where the inputs have them ``mask [R, 1]`` and ``normal [R, 3]``."""
         raise NotImplementedError
 
     def composite_other_colors(self, outputs: dict[str, torch.Tensor], color: dict[str, torch.Tensor],
@@ -100,7 +105,7 @@ class Model(nn.Module):
 
     def apply_extra_losses(self, losses: dict[str, torch.Tensor], outputs, batch) -> dict[str, torch.Tensor]:
         """The losses every model shares, after its own: the field's (``extra_losses``, e.g. the
-        view-adaptive regularizers) and the registered hooks'."""
+        view-adaptive regularizers) and the registered hooks', each a scalar ``[]``."""
         losses.update(self.field.extra_losses(outputs, batch, self.color_loss))
         for hook in self.extra_losses:
             losses.update(hook(outputs, batch, self.step))
@@ -135,7 +140,8 @@ class Model(nn.Module):
     # -- evaluation and export ------------------------------------------------------------------
     def render_rays(self, ray_bundle: RayBundle, keys: Sequence[str] = ("rgb", "accumulation", "depth")
                     ) -> dict[str, torch.Tensor]:
-        """Render many rays in chunks without building a graph; returns the chosen outputs."""
+        """Render many rays in chunks without building a graph; returns the chosen outputs, each
+        ``[n_rays, ...]`` (``rgb [n_rays, 3]``, ``accumulation`` and ``depth [n_rays, 1]``)."""
         was_training = self.training
         self.eval()
         collected: dict[str, list[torch.Tensor]] = {k: [] for k in keys}
@@ -158,7 +164,7 @@ class Model(nn.Module):
         raise NotImplementedError
 
     def prepare_mesh_grid(self, values: np.ndarray, spacing: float) -> np.ndarray:
-        """The grid of :meth:`mesh_field` values (cells ``spacing`` apart) as marching cubes should see it
-        (e.g. ngp's density smoothed in log space); unchanged by default."""
+        """The grid ``[r, r, r]`` of :meth:`mesh_field` values (cells ``spacing`` apart) as marching cubes
+        should see it (e.g. ngp's density smoothed in log space); unchanged by default."""
         return values
 

@@ -75,6 +75,9 @@ class NeuSModelConfig(ModelConfig):
     crossings_start: float = 0.1
     """Share of the step budget before the crossings prior starts."""
 
+    def samples_per_ray(self) -> int:
+        return int(self.n_samples) + int(self.n_importance)
+
 
 class NeuSModel(Model):
     config: NeuSModelConfig
@@ -177,11 +180,14 @@ class NeuSModel(Model):
         return edges
 
     def _sdf_along(self, ray_bundle: RayBundle, t: torch.Tensor) -> torch.Tensor:
+        """The SDF ``[n_rays, m]`` at distances ``t [n_rays, m]`` along the rays."""
         points = ray_bundle.origins[:, None] + ray_bundle.directions[:, None] * t[..., None]
         return self.field.geometry(points)[0][..., 0]
 
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
+        """:meth:`Model.get_outputs`, plus ``normal [R, 3]`` and, over the ``k`` samples evaluated with
+        gradients, ``weights [k]``, ``gradients [k, 3]`` and ``inside [k]`` (packed row-major)."""
         nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions,
                                                  self.scene.scene_radius)
         ray_bundle.nears, ray_bundle.fars = nears, fars
@@ -262,6 +268,8 @@ class NeuSModel(Model):
         return self.composite_other_colors(outputs, color, weights, unpack)
 
     def get_loss_dict(self, outputs, batch) -> dict[str, torch.Tensor]:
+        """Scalar terms ``[]``: ``rgb``, and those whose weight is on: ``eikonal`` (of ``gradients [k, 3]``),
+        ``mask``, ``normal``, ``crossings``; then the shared ones (:meth:`Model.apply_extra_losses`)."""
         cfg = self.config
         loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"])}
         if cfg.eikonal_weight > 0:
@@ -276,7 +284,7 @@ class NeuSModel(Model):
 
     def _crossings(self, device: torch.device) -> torch.Tensor:
         """Half the mean number of surface crossings of random lines through the scene sphere (the
-        crossings prior), from stratified samples of the SDF on each line's chord."""
+        crossings prior, a scalar ``[]``), from stratified samples of the SDF on each line's chord."""
         cfg = self.config
         rays = isotropic_rays(cfg.crossings_rays, self.scene.scene_radius, device=device)
         nears, fars, _ = near_far_from_sphere(rays.origins, rays.directions, self.scene.scene_radius)
@@ -286,9 +294,12 @@ class NeuSModel(Model):
     # -- export ---------------------------------------------------------------------------------
     @torch.no_grad()
     def mesh_field(self, points: torch.Tensor) -> torch.Tensor:
+        """The SDF ``[n]`` at points ``[n, 3]``, negative inside."""
         return self.field.geometry(points)[0][..., 0]
 
     def surface_color(self, points: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+        """RGB ``[n, 3]`` of surface points ``[n, 3]`` seen head-on against their normals ``[n, 3]``, from the
+        canonical feature (camera index -1)."""
         with torch.no_grad():
             _, geo_features = self.field.geometry(points)
             camera = torch.full(points.shape[:-1], -1, dtype=torch.long, device=points.device)
@@ -304,7 +315,8 @@ PER_RAY_KEYS = ("rgb", "accumulation", "depth", "normal")
 
 def _scatter_rays(inner: dict[str, torch.Tensor], index: torch.Tensor, n_rays: int,
                   background: torch.Tensor, blank: bool = False) -> dict[str, torch.Tensor]:
-    """Per-ray outputs for all ``n_rays`` from those of the rendered subset ``index``; skipped rays
+    """Per-ray outputs ``[n_rays, ...]`` from those ``[len(index), ...]`` of the rendered subset ``index``
+    ``[len(index)]``; skipped rays
     render the background with zero opacity. Per-sample outputs keep only the rendered rays. With
     ``blank``, the rendered rays were skipped too (kept only for the graph): they show nothing either."""
     out = dict(inner)

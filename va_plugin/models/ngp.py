@@ -14,7 +14,7 @@ import numpy as np
 import torch
 from torch import nn
 
-from va_plugin.engine.callbacks import BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
+from va_plugin.callbacks import BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.density_field import DensityFieldConfig, trunc_exp
@@ -52,6 +52,9 @@ class NGPModelConfig(ModelConfig):
     fill_mesh_cavities: bool = True
     """Make empty space that is enclosed by the surface solid before the mesh is extracted (no camera
     sees it; a density shell leaves it behind its front wall)."""
+
+    def samples_per_ray(self) -> int:
+        return int(self.n_samples)
 
 
 LOG_DENSITY_FLOOR = 1e-2
@@ -117,6 +120,8 @@ class NGPModel(Model):
 
     # -- rendering ------------------------------------------------------------------------------
     def get_outputs(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
+        """:meth:`Model.get_outputs`, plus ``weights [k]`` over the ``k`` samples evaluated and, while
+        training with ``distortion_weight`` on, ``distortion [R]``."""
         if self.training:
             return self._render(ray_bundle)
         with torch.no_grad():
@@ -144,6 +149,8 @@ class NGPModel(Model):
         return visible, (raw[chosen], geo_features[chosen])
 
     def _render(self, ray_bundle: RayBundle) -> dict[str, torch.Tensor]:
+        """The outputs of :meth:`get_outputs` for ``R`` rays of ``n_samples`` uniform sections each (``[R,
+        n_samples]``), the samples skipped at density 0."""
         nears, fars, _ = near_far_from_sphere(ray_bundle.origins, ray_bundle.directions, self.scene.scene_radius)
         ray_bundle.nears, ray_bundle.fars = nears, fars
         inner = uniform_edges(nears, fars, self.config.n_samples - 1, jitter=self.training)
@@ -172,6 +179,8 @@ class NGPModel(Model):
         return self.composite_other_colors(outputs, color, weights, lambda value: scatter(value, keep))
 
     def get_loss_dict(self, outputs, batch) -> dict[str, torch.Tensor]:
+        """Scalar terms ``[]``: ``rgb``, ``mask`` (of ``accumulation [R, 1]``) and ``distortion`` (the mean of
+        ``[R]``) where on; then the shared ones (:meth:`Model.apply_extra_losses`)."""
         cfg = self.config
         loss = {"rgb": losses.rgb_loss(outputs["rgb"], batch["rgb"])}
         if cfg.mask_weight > 0 and "mask" in batch:
@@ -183,8 +192,8 @@ class NGPModel(Model):
     # -- export ---------------------------------------------------------------------------------
     @torch.no_grad()
     def mesh_field(self, points: torch.Tensor) -> torch.Tensor:
-        """``density_threshold - density``; cells the occupancy grid marks empty count as empty, as in
-        rendering."""
+        """``density_threshold - density`` ``[n]`` at points ``[n, 3]``; cells the occupancy grid marks empty
+        count as empty, as in rendering."""
         density = self.density(points)
         if self.occupancy_grid is not None:
             density = density * self.occupancy_grid.occupied(points)
@@ -208,6 +217,8 @@ class NGPModel(Model):
 
     @torch.no_grad()
     def surface_color(self, points: torch.Tensor, normals: torch.Tensor) -> torch.Tensor:
+        """RGB ``[n, 3]`` of surface points ``[n, 3]`` seen head-on against their normals ``[n, 3]``, from the
+        canonical feature (camera index -1)."""
         camera = torch.full(points.shape[:-1], -1, dtype=torch.long, device=points.device)
         geo_features = self.field.geometry(points)[1]
         return self.field.color(points, -normals, normals, geo_features, camera)["rgb"]

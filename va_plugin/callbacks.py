@@ -1,7 +1,8 @@
 """Training callbacks: how models and wrappers react to the step without knowing the trainer.
 
 A callback gets the step and :class:`TrainingCallbackAttributes` (never the trainer) and returns the
-learning-rate factors it wants, by optimizer group."""
+learning-rate factors it wants, by optimizer group. The module stands on the bottom floor: the models and
+the view-adaptive wrapper build callbacks, and the trainer, floors above them, runs them."""
 
 from __future__ import annotations
 
