@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import math
 import os
 import pickle
 import random
@@ -21,6 +22,7 @@ from tqdm import tqdm
 
 from va_plugin.callbacks import AFTER_STEP, BEFORE_STEP, TrainingCallback, TrainingCallbackAttributes
 from va_plugin.config import InstantiateConfig, to_dict, validate_config
+from va_plugin.engine.averaging import WeightAverage
 from va_plugin.engine.health import OK, SKIP, HealthConfig, TrainingGuard, check_usable
 from va_plugin.engine.metrics_log import METRICS_FILE, append_record, read_records, write_records
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
@@ -65,6 +67,9 @@ class TrainerConfig(InstantiateConfig):
     """Steps over which every schedule runs (learning rate, grid levels, priors' starts, annealing, the
     adaptive phases); 0: ``max_steps``. A shorter budget compresses the schedules; a longer one trains
     past ``schedule_steps`` at their final values (see :func:`schedule_steps_of`)."""
+    average_fraction: float = 0.0
+    """Share of ``max_steps``, at the end of the run, over which the weights are averaged: the run ends with
+    the mean of the parameters after each of those steps instead of the last step's (0: the last step's)."""
     seed: int = 42
     """Seed of every random generator (the paper's 42)."""
     device: str = "auto"
@@ -94,6 +99,8 @@ class TrainerConfig(InstantiateConfig):
             raise ConfigError(f"max_steps must be at least 1, got {self.max_steps}")
         if self.schedule_steps < 0:
             raise ConfigError(f"schedule_steps must be >= 0 (0: max_steps), got {self.schedule_steps}")
+        if not (math.isfinite(self.average_fraction) and 0.0 <= self.average_fraction < 1.0):
+            raise ConfigError(f"average_fraction must be in [0, 1), got {self.average_fraction}")
 
 
 def schedule_steps_of(config: TrainerConfig) -> int:
@@ -293,6 +300,8 @@ class Trainer:
         self.pipeline = config.pipeline.setup(device=self.device, schedule_steps=self.schedule_steps)
         self.model = self.pipeline.model
         self.optimizer = self._make_optimizer()
+        averaged = round(config.average_fraction * config.max_steps)
+        self.average = WeightAverage(list(self.model.parameters()), config.max_steps - averaged) if averaged else None
         self.lr_multipliers: dict[str, float] = dict.fromkeys(self.group_names, 1.0)
         self.callbacks: list[TrainingCallback] = list(self.model.training_callbacks())
         self.callback_attributes = TrainingCallbackAttributes(
@@ -351,6 +360,7 @@ class Trainer:
             "model": self.model.state_dict(),
             "optimizer": self.optimizer.state_dict(),
             "lr_multipliers": dict(self.lr_multipliers),
+            **({"average": self.average.state_dict()} if self.average is not None else {}),
             "health": self.guard.state_dict(step=self.step),
             "datamanager": self.pipeline.datamanager.state_dict(),
             "rng": {"torch": torch.get_rng_state(), "numpy": np.random.get_state(), "python": random.getstate(),
@@ -407,6 +417,8 @@ class Trainer:
             self.model.load_state_dict(state["model"])
             self.optimizer.load_state_dict(state["optimizer"])
             _transpose_stale_moments(self.optimizer)
+            if self.average is not None:
+                self.average.load_state_dict(state.get("average", {}))
         except (RuntimeError, ValueError, KeyError) as exc:
             first = str(exc).strip().splitlines()[0]
             raise CheckpointError(f"checkpoint {state.get('path')} does not fit this config ({first})") from None
@@ -581,6 +593,11 @@ class Trainer:
             self._stop_if_asked(poll)
             self._mid_step = True
             record, elapsed = self.run_step()
+            if self.average is not None:
+                self.average.update(self.step)
+                if self.step == cfg.max_steps and self.average.apply():
+                    # the step schedules (e.g. the inv_s floor) hold for the averaged weights too
+                    self.model.restore_step(self.step - 1)
             recent = (recent + [elapsed])[-20:]
             record.update(self.model.diagnostics())
             record.update({"step": self.step, "train_seconds": round(self.train_seconds, 3),
