@@ -177,6 +177,19 @@ FORMATS: dict[str, DataFormat] = {
 FORMATS.update({name: fmt for name, fmt in plugin_formats().items() if name not in FORMATS})
 
 
+def counted_folder(spec: RigSpec) -> bool:
+    """Whether the rig recognises a folder only by how many images it holds (a 4-view folder, SV3D frames)."""
+    return spec.layout in ("folder", "video") and not spec.files
+
+
+def is_input_folder(path: Path) -> bool:
+    """Whether a folder is one input as a whole (a scene folder, a Wonder3D or Era3D output), not a folder of
+    inputs: folders a rig recognises only by their image count do not count (four SyncDreamer strips are
+    four inputs)."""
+    counted = {name for name, spec in builtin_rigs().items() if counted_folder(spec)}
+    return path.is_dir() and any(fmt.detect(path) for name, fmt in FORMATS.items() if name not in counted)
+
+
 def format_list() -> str:
     return "; ".join(f"{name}: {fmt.layout}" for name, fmt in FORMATS.items() if name != RIG_FILE_FORMAT)
 
