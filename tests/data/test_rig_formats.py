@@ -324,3 +324,14 @@ def test_a_missing_or_broken_rig_file_is_one_line(tmp_path, capsys):
     broken.write_text("{\"layout\": ")
     code, err = run_recon([str(image), "--rig", str(broken)], tmp_path, capsys)
     assert code == 2 and "is not valid JSON" in err and len(err.splitlines()) == 1
+
+
+@pytest.mark.parametrize("extra, message", [
+    (["--data-format", "crm", "--elevation", "5"], "rig crm gives each view its own elevation"),
+    (["--data-format", "mvadapter", "--fov", "30"], "rig mvadapter is orthographic; --fov applies"),
+    (["--data-format", "zero123pp", "--rig", "sv3d"], "--rig sv3d and --data-format zero123pp disagree"),
+])
+def test_recon_rig_options_that_do_not_apply_are_one_line(extra, message, tmp_path, capsys):
+    image = blank(tmp_path / "pixel_images.png", 16, 96)
+    code, err = run_recon([str(image), *extra], tmp_path, capsys)
+    assert code == 2 and len(err.splitlines()) == 1 and message in err
