@@ -95,8 +95,8 @@ METRICS = ("cd", "iou", "fscore", "psnr", "ssim", "lpips")
 
 # generator option -> (dataparser option, the formats that have it)
 GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"),
-                     "elevation": ("elevation_deg", "syncdreamer and rig formats with one elevation"),
-                     "fov": ("fov_deg", "perspective rig formats"),
+                     "elevation": ("elevation_deg", "syncdreamer and rig-format"),
+                     "fov": ("fov_deg", "rig-format (perspective)"),
                      "rig": ("rig", "zero123pp"), "masks": ("masks", "generator")}
 Progress = Callable[[int, int, dict[str, float]], None]
 """``progress(step, total, losses)``: called after every training step."""

@@ -188,7 +188,7 @@ def test_elevation_and_fov_options(renderer, tmp_path):
         build_config("neus", path, data_format="mvadapter", fov=30.0)
     with pytest.raises(DataError, match="gives each view its own elevation"):
         build_config("neus", path, data_format="crm", elevation=5.0)
-    with pytest.raises(ConfigError, match="--fov applies to perspective rig formats inputs only"):
+    with pytest.raises(ConfigError, match=r"--fov applies to rig-format \(perspective\) inputs only"):
         build_config("neus", path, data_format="zero123pp", fov=30.0)
 
 
