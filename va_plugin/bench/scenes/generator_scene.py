@@ -29,6 +29,8 @@ from va_plugin.cameras import PERSPECTIVE, Cameras
 from va_plugin.data.rigfile import RigSpec, resolve_rig, rig_cameras
 from va_plugin.data.visual_hull import normalise_cameras
 from va_plugin.errors import ConfigError
+from va_plugin.eval.evaluate import FSCORE_THRESHOLD, load_mesh
+from va_plugin.eval.geometry import geometry_metrics
 from va_plugin.utils.threads import single_thread
 
 HELD_SIZE = 1.2
@@ -122,9 +124,6 @@ def score_generator_run(mesh_path: Path, scene_dir: Path, rig_to_training: dict,
     """CD, volume IoU and F-score of a run's ``mesh.ply`` (training frame) against the scene's ``mesh.ply``
     brought into the training frame by the reader's ``rig_to_training`` (``x' = (x - centre) * scale``), both
     then scaled so the ground truth's bounding box has a longest side of 1 (the benchmark protocol)."""
-    from va_plugin.eval.evaluate import FSCORE_THRESHOLD, load_mesh
-    from va_plugin.eval.geometry import geometry_metrics
-
     pred, truth = load_mesh(Path(mesh_path)), load_mesh(Path(scene_dir) / "mesh.ply")
     truth.apply_translation(-np.asarray(rig_to_training["centre"], np.float64))
     truth.apply_scale(float(rig_to_training["scale"]))
