@@ -126,13 +126,14 @@ def _one_input(folder: Path) -> bool:
 
 def _object_in(folder: Path, name: str) -> Path:
     """The one generator output or scene folder below ``folder`` (an unpacked zip)."""
-    whole = [f for f in (folder, *(p for p in folder.iterdir() if p.is_dir())) if _one_input(f)]
-    if len(whole) == 1:  # a folder of 4 views or 21 frames is one input here, not four or 21
-        return whole[0]
     try:
         found = find_objects(folder)
     except ConfigError:
         found = []
+    if len(found) != 1:  # a folder of 4 views or 21 frames is one input here, not four or 21
+        whole = [f for f in (folder, *(p for p in folder.iterdir() if p.is_dir())) if _one_input(f)]
+        if len(whole) == 1:
+            return whole[0]
     if not found:
         raise DataError(f"{name} holds no input the app knows: expected {ACCEPTED}")
     if len(found) > 1:
