@@ -23,6 +23,8 @@ from va_plugin.raycast import MeshRenderer, position_albedo
 
 TILE = 32
 RIGS = sorted(builtin_rigs())
+SHARED_DATA = Path(__file__).resolve().parents[2].parent / "shared" / "data"
+ZERO123PP_FOX = SHARED_DATA / "generated" / "zero123pp" / "fox.png"
 
 
 @pytest.fixture(scope="module")
@@ -335,3 +337,19 @@ def test_recon_rig_options_that_do_not_apply_are_one_line(extra, message, tmp_pa
     image = blank(tmp_path / "pixel_images.png", 16, 96)
     code, err = run_recon([str(image), *extra], tmp_path, capsys)
     assert code == 2 and len(err.splitlines()) == 1 and message in err
+
+
+
+@pytest.mark.skipif(not ZERO123PP_FOX.is_file(), reason=f"generator outputs absent: {ZERO123PP_FOX}")
+def test_a_real_zero123pp_grid_read_through_a_users_rig_file_fits_like_its_own_parser(tmp_path):
+    """Zero123++ v1.2 described as a user would (alternating elevations, FOV 30): the same cameras and the
+    same silhouette fit as the built-in zero123pp parser, through the rig-file path."""
+    rig = tmp_path / "zero123pp.json"
+    rig.write_text(json.dumps({
+        "name": "zero123pp-by-hand", "layout": {"type": "grid", "rows": 3, "columns": 2},
+        "views": {"azimuths": [30, 90, 150, 210, 270, 330], "elevations": [20, -10, 20, -10, 20, -10]},
+        "camera": {"type": "perspective", "fov_deg": 30, "distance": 2.0}, "background": "grey"}))
+    ours = parse(ZERO123PP_FOX, "zero123pp")
+    theirs = build_config("neus", ZERO123PP_FOX, rig=rig).pipeline.datamanager.dataparser.setup().get_outputs("train")
+    assert torch.allclose(ours.cameras.c2w, theirs.cameras.c2w, atol=1e-5)
+    assert theirs.metadata["silhouette_iou"] == ours.metadata["silhouette_iou"]
