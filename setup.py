@@ -19,7 +19,7 @@ setup(
     python_requires=">=3.11",
     packages=find_packages(include=["va_plugin", "va_plugin.*", "method_configs", "method_configs.*"]),
     # the hash grid's fused CPU kernels are compiled from source on first use
-    package_data={"va_plugin.fields.encodings": ["*.cpp"]},
+    package_data={"va_plugin.fields.encodings": ["*.cpp"], "va_plugin.data": ["rig_files/*.json"]},
     install_requires=[
         # torch is pinned by the setup script to the CPU build on this machine; a plain range here
         # would let pip pull a multi-GB CUDA build when torch is missing.
@@ -50,5 +50,7 @@ setup(
             "va-app = va_plugin.cli.app:main",
         ],
         "va_plugin.methods": METHODS,
+        # multi-view generator formats of other packages: a DataFormat, a rig dict or a rig file's path
+        "va_plugin.formats": [],
     },
 )

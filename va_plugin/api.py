@@ -39,7 +39,9 @@ from va_plugin.callbacks import TrainingCallback
 from va_plugin.config import apply_override, validate_config
 from va_plugin.data.datamanager import MASK_PICTURE
 from va_plugin.data.dataparsers import FORMATS, resolve_dataparser
+from va_plugin.data.dataparsers.rigged import RigDataParserConfig
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.data.rigfile import builtin_rigs, is_rig_file
 from va_plugin.engine.run_folder import check_output_file, claim_run_folder, writing_into_run
 from va_plugin.engine.trainer import (
     TrainerConfig,
@@ -92,8 +94,10 @@ METRICS = ("cd", "iou", "fscore", "psnr", "ssim", "lpips")
 """The scores :func:`reconstruct` reports for an object with ground truth."""
 
 # generator option -> (dataparser option, the formats that have it)
-GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"), "elevation": ("elevation_deg", "syncdreamer"),
-                     "rig": ("rig", "zero123pp"), "masks": ("masks", "syncdreamer, zero123pp and wonder3d")}
+GENERATOR_OPTIONS = {"views": ("num_views", "syncdreamer"),
+                     "elevation": ("elevation_deg", "syncdreamer and rig-format"),
+                     "fov": ("fov_deg", "rig-format (perspective)"),
+                     "rig": ("rig", "zero123pp"), "masks": ("masks", "generator")}
 Progress = Callable[[int, int, dict[str, float]], None]
 """``progress(step, total, losses)``: called after every training step."""
 Stop = threading.Event | Callable[[], bool] | None
@@ -131,7 +135,7 @@ def _apply_generator_options(parser_config, given: dict[str, Any]) -> None:
             if option in options:
                 setattr(parser_config, option, max(VIEW_COUNTS))
             continue
-        if option not in options:
+        if option not in options or (name == "rig" and isinstance(parser_config, RigDataParserConfig)):
             raise ConfigError(f"--{name} applies to {formats} inputs only")
         setattr(parser_config, option, value)
 
@@ -144,19 +148,36 @@ def check_views(views: Any) -> Any:
     raise ConfigError(f"views {views!r} is not one of 4, 8, 12, 16 or all")
 
 
+def split_rig_option(rig: str | Path | None, data_format: str) -> tuple[str | None, str | Path | None, str]:
+    """``rig`` as ``(zero123pp version, rig file, data format)``: a rig file (.json, .yaml) is read as the
+    input's layout, a built-in rig's name is its format, anything else is a Zero123++ version."""
+    if rig is None:
+        return None, None, data_format
+    if is_rig_file(rig):
+        return None, rig, data_format
+    if str(rig) in builtin_rigs():
+        if data_format not in ("auto", str(rig)):
+            raise ConfigError(f"--rig {rig} and --data-format {data_format} disagree; give one of them")
+        return None, None, str(rig)
+    return str(rig), None, data_format
+
+
 def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = None, *, preset: str | None = None,
                  steps: int | None = None, seed: int | None = None, device: str | None = None,
                  out: str | Path | None = None, views: int | str | None = None, elevation: float | None = None,
-                 rig: str | None = None, masks: str | Path | None = None, data_format: str = "auto",
-                 overrides: Mapping[str, Any] | Iterable[str] | None = None,
+                 rig: str | Path | None = None, masks: str | Path | None = None, data_format: str = "auto",
+                 overrides: Mapping[str, Any] | Iterable[str] | None = None, fov: float | None = None,
                  progress: bool = True) -> TrainerConfig:
     """The trainer config of ``method`` on ``data``: what ``va-train`` trains for the same options.
 
     ``data``: a generator output or scene folder (its format detected unless ``data_format`` names it);
     None: the method's own dataparser config, without reading any input (``va-train`` without ``--data``
     passes the embedded default scene of :func:`va_plugin.bench.scenes.default_scene`). ``preset``: a
-    named variant of the method. ``views``, ``elevation``:
-    SyncDreamer strips; ``rig``: Zero123++ grids; ``masks``: a mask folder or image for generator inputs.
+    named variant of the method. ``views``: SyncDreamer strips; ``elevation``: SyncDreamer strips and rig
+    formats with one elevation (SV3D, 4-view rigs, ...); ``fov``: perspective rig formats (degrees);
+    ``rig``: a rig file (.json or .yaml, see docs/data.md) that describes the input's layout and cameras,
+    a built-in rig's name (same as ``data_format``), or a Zero123++ version (v1.1, v1.2); ``masks``: a mask
+    folder or image for generator inputs.
     ``overrides``: ``{"pipeline.model.eikonal_weight": 0.05}`` (or ``"key=value"`` strings, or ``__`` for the
     dots), applied last. ``out``: the run folder (default ``outputs/METHOD``)."""
     methods = discover_methods()
@@ -168,10 +189,12 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
     config.method_name = method
     config.preset_name = preset or "default"  # not a field: what the run folder's manifest names
     if data is not None:
+        version, rig_file, data_format = split_rig_option(rig, data_format)
         config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), data_format,
-                                                                    config.pipeline.datamanager.dataparser)
+                                                                    config.pipeline.datamanager.dataparser,
+                                                                    rig_file=rig_file)
         _apply_generator_options(config.pipeline.datamanager.dataparser,
-                                 {"views": check_views(views), "elevation": elevation, "rig": rig,
+                                 {"views": check_views(views), "elevation": elevation, "rig": version, "fov": fov,
                                   "masks": None if masks is None else Path(masks)})
     config.output_dir = Path(out) if out is not None else Path("outputs") / method
     if steps is not None:
@@ -590,8 +613,9 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
                 quality: str = "default", views: int | str = "all", steps: int | None = None,
                 device: str = "auto", texture: bool = True, progress: Progress | None = None, *,
                 seed: int | None = None, preset: str | None = None, masks: str | Path | None = None,
-                elevation: float | None = None, rig: str | None = None, data_format: str = "auto",
-                resume: bool = False, overwrite: bool = False, texture_size: int = 1024, mesh_resolution: int = 128,
+                elevation: float | None = None, rig: str | Path | None = None, data_format: str = "auto",
+                fov: float | None = None, resume: bool = False, overwrite: bool = False, texture_size: int = 1024,
+                mesh_resolution: int = 128,
                 turntable_frames: int = 36, fusion: str = "robust", threads: int = 0,
                 faces: int | None = None, frame: str = "upright",
                 evaluate_options: Mapping[str, Any] | None = None,
@@ -633,7 +657,7 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     run_dir = Path(out) if out is not None else Path("outputs") / "recon" / source.resolve().stem
     config = build_config(method, source, preset=QUALITIES[quality] if preset is None else preset, steps=steps,
                           seed=seed, device=device, out=run_dir, views=views, elevation=elevation, rig=rig,
-                          masks=masks, data_format=data_format,
+                          masks=masks, data_format=data_format, fov=fov,
                           overrides=[*_override_list(overrides), *_override_list(more_overrides)],
                           progress=show_progress)
     config.num_threads = threads

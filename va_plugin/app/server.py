@@ -315,7 +315,8 @@ class App:
             with gr.Row():
                 with gr.Column(scale=1):
                     # every kind of file reaches inspect(), which says in one line what it cannot use
-                    upload = gr.File(label="Generator output (PNG, or a zip of a folder)", elem_id="upload")
+                    upload = gr.File(label="Generator output (PNG or JPG, an SV3D MP4, or a zip of a folder)",
+                                     elem_id="upload")
                     quality = gr.Radio(list(QUALITIES), value="default", label="Quality",
                                        info="fast: a rough mesh in a fraction of the time; accurate: the paper's large "
                                             "network, hours on a CPU (meant for a GPU)")

@@ -20,19 +20,24 @@ import numpy as np
 
 from va_plugin.api import QUALITIES, build_config, check_views
 from va_plugin.batch.inputs import find_objects
-from va_plugin.data.dataparsers import detect_format, image_shape
-from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES
+from va_plugin.data.dataparsers import FORMATS, detect_format, image_shape
+from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES, image_files
 from va_plugin.data.foreground import mask_picture
+from va_plugin.data.images import VIDEO_SUFFIXES, read_video
 from va_plugin.errors import ConfigError, DataError, VAError
 
 FORMAT_NAMES = {"syncdreamer": "SyncDreamer strip", "zero123pp": "Zero123++ grid", "wonder3d": "Wonder3D folder",
-                "transforms": "transforms.json scene"}
+                "transforms": "transforms.json scene", "hunyuan3d-std": "Hunyuan3D-1 grid",
+                "hunyuan3d-lite": "Hunyuan3D-1 lite grid", "mvadapter": "MV-Adapter row", "sv3d": "SV3D video",
+                "era3d": "Era3D folder", "crm": "CRM strip", "four-view-grid": "4-view grid",
+                "four-view-row": "4-view row", "four-view-folder": "4-view folder"}
 VIEW_CHOICES = ("all", "4", "8", "12", "16")
 """The page's choices of training views (SyncDreamer strips)."""
 ZIP_RATIO = 10
 """A zip may unpack to at most this many times the upload limit."""
 MAX_ZIP_FILES = 5000
-ACCEPTED = "an image (a SyncDreamer strip or a Zero123++ grid) or a zip of a Wonder3D or transforms.json folder"
+ACCEPTED = ("an image (a SyncDreamer strip, a Zero123++, Hunyuan3D-1 or 4-view grid, an MV-Adapter row, a CRM "
+            "strip), an SV3D MP4, or a zip of a Wonder3D, Era3D, 4-view or transforms.json folder")
 
 
 @dataclass
@@ -111,12 +116,24 @@ def _unpack(archive: Path, into: Path, max_bytes: int, name: str) -> None:
         raise DataError(f"cannot unpack {name}: {detail}") from None
 
 
+def _one_input(folder: Path) -> bool:
+    """A folder of image files only that some format reads as one input."""
+    files = [p for p in folder.iterdir() if not p.name.startswith(".")]
+    if not files or len(image_files(folder)) != len(files):
+        return False
+    return any(fmt.detect(folder) for fmt in FORMATS.values())
+
+
 def _object_in(folder: Path, name: str) -> Path:
     """The one generator output or scene folder below ``folder`` (an unpacked zip)."""
     try:
         found = find_objects(folder)
     except ConfigError:
         found = []
+    if len(found) != 1:  # a folder of 4 views or 21 frames is one input here, not four or 21
+        whole = [f for f in (folder, *(p for p in folder.iterdir() if p.is_dir())) if _one_input(f)]
+        if len(whole) == 1:
+            return whole[0]
     if not found:
         raise DataError(f"{name} holds no input the app knows: expected {ACCEPTED}")
     if len(found) > 1:
@@ -140,7 +157,7 @@ def stage_upload(file: str | Path, staging_root: Path, max_bytes: int) -> Upload
         raise DataError(f"{name} is {_megabytes(size)}; the app takes uploads up to {_megabytes(max_bytes)} "
                         "(va-app --max-upload-mb)")
     suffix = file.suffix.lower()
-    if suffix not in (*IMAGE_SUFFIXES, ".zip"):
+    if suffix not in (*IMAGE_SUFFIXES, *VIDEO_SUFFIXES, ".zip"):
         raise DataError(f"{name} is neither {ACCEPTED}")
     staging = Path(staging_root) / uuid.uuid4().hex
     upload = Upload(name, staging / name, staging)
@@ -150,6 +167,9 @@ def stage_upload(file: str | Path, staging_root: Path, max_bytes: int) -> Upload
             unpacked = staging / (file.stem or "upload")
             _unpack(file, unpacked, max_bytes, name)
             upload.path = _object_in(unpacked, name)
+        elif suffix in VIDEO_SUFFIXES:
+            shutil.copyfile(file, upload.path)
+            read_video(upload.path)  # a clear line for a video OpenCV cannot decode
         else:
             shutil.copyfile(file, upload.path)
             if image_shape(upload.path) is None:
@@ -184,7 +204,7 @@ def inspect_upload(upload: Upload, method: str, quality: str = "default", views:
         data_format = detect_format(upload.path)
         if views != "all" and data_format != "syncdreamer":
             notes.append(f"a view count applies to SyncDreamer strips only; training on every view of this "
-                         f"{FORMAT_NAMES[data_format]}")
+                         f"{FORMAT_NAMES.get(data_format, data_format)}")
             views = "all"
         with warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")

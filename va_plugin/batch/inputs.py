@@ -1,8 +1,9 @@
 """Which objects a batch holds: the generator outputs and scene folders below a folder, or those a text
 file lists, each with a unique name (its run folder's name).
 
-Below a folder, an object is an image file or a folder a dataparser reads as a whole (a scene folder, a
-Wonder3D output); other folders are searched, hidden ones skipped. An image that fits no format is still
+Below a folder, an object is an image or video file or a folder a dataparser reads as a whole (a scene
+folder, a Wonder3D or Era3D output); other folders are searched, hidden ones skipped (a folder of 4 images
+or of 21 frames is searched too: name it in a list file to read it as one object). An image that fits no format is still
 an object (its job fails, the batch goes on). A list file names one path per line, relative to the file's
 folder (blank lines and ``#`` lines skipped).
 """
@@ -14,8 +15,9 @@ from collections import Counter
 from dataclasses import dataclass
 from pathlib import Path
 
-from va_plugin.data.dataparsers import FORMATS
+from va_plugin.data.dataparsers import is_input_folder
 from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES
+from va_plugin.data.images import VIDEO_SUFFIXES
 from va_plugin.errors import ConfigError
 
 MAX_DEPTH = 4
@@ -30,18 +32,18 @@ class BatchObject:
     path: Path
 
 
-def _is_object_folder(path: Path) -> bool:
-    return any(fmt.detect(path) for fmt in FORMATS.values())
+INPUT_SUFFIXES = (*IMAGE_SUFFIXES, *VIDEO_SUFFIXES)
+"""Files that are objects of a batch: generator images, and videos (SV3D)."""
 
 
 def _search(folder: Path, depth: int) -> list[Path]:
-    if _is_object_folder(folder):
+    if is_input_folder(folder):
         return [folder]
     found: list[Path] = []
     for item in sorted(folder.iterdir()):
         if item.name.startswith("."):
             continue
-        if item.is_file() and item.suffix.lower() in IMAGE_SUFFIXES:
+        if item.is_file() and item.suffix.lower() in INPUT_SUFFIXES:
             found.append(item)
         elif item.is_dir() and depth < MAX_DEPTH:
             found.extend(_search(item, depth + 1))
@@ -69,7 +71,7 @@ def _slug(text: str) -> str:
 def _names(paths: list[Path], root: Path) -> list[str]:
     """Each path's stem; where stems repeat, the path below ``root`` (or the whole path) joined by '-',
     and a counter where even that repeats."""
-    stems = [_slug(p.stem if p.suffix.lower() in IMAGE_SUFFIXES else p.name) for p in paths]
+    stems = [_slug(p.stem if p.suffix.lower() in INPUT_SUFFIXES else p.name) for p in paths]
     repeated = Counter(stems)
     names = []
     for path, stem in zip(paths, stems):
@@ -96,7 +98,7 @@ def find_objects(inputs: Path) -> list[BatchObject]:
     inputs = inputs.resolve()
     if inputs.is_dir():
         paths, root = _search(inputs, 0), inputs
-    elif inputs.suffix.lower() in IMAGE_SUFFIXES or inputs.suffix.lower() == ".json":
+    elif inputs.suffix.lower() in INPUT_SUFFIXES or inputs.suffix.lower() == ".json":
         paths, root = [inputs], inputs.parent
     else:
         paths, root = [p.resolve() for p in _read_list(inputs)], inputs.parent

@@ -127,6 +127,8 @@ def main(argv: list[str] | None = None) -> int:
     out = args.out.expanduser().resolve()
     workers = args.workers or max(1, (os.cpu_count() or 1) // args.threads)
     options = {name: getattr(args, name) for name in object_option_names()}
+    if options.get("fov") is None:  # batches started before --fov existed resume
+        options.pop("fov", None)
     evaluation = Evaluation(args.mesh_resolution, args.eval_image_scale, args.eval_max_views, args.eval_samples)
     texture_size = 0 if args.no_texture else args.texture_size
     settings = {"method": args.method, "options": options, "evaluation": asdict(evaluation),

@@ -24,7 +24,7 @@ from va_plugin.cli.common import (
     check_output_dir,
     friendly_errors,
 )
-from va_plugin.cli.train import VIEWS_HELP, parse_views
+from va_plugin.cli.train import VIEWS_HELP, add_rig_options, parse_views
 from va_plugin.data.dataparsers import FORMATS
 from va_plugin.registry import discover_methods
 
@@ -33,8 +33,9 @@ def build_parser(methods) -> argparse.ArgumentParser:
     listing = ", ".join(methods)
     parser = ArgumentParser(
         prog="va-recon",
-        description="Turn a multi-view generator's output (SyncDreamer strip, Zero123++ grid, Wonder3D "
-                    "folder) or a scene folder into a textured mesh, in one command.",
+        description="Turn a multi-view generator's output (SyncDreamer, Zero123++, Wonder3D, Hunyuan3D-1, "
+                    "MV-Adapter, SV3D, Era3D, CRM, 4-view grids, or any layout a rig file describes) or a scene "
+                    "folder into a textured mesh, in one command.",
         epilog=f"Writes OUT/mesh.ply, OUT/mesh.glb and OUT/mesh.obj (textured, +Y up), OUT/turntable/ and "
                "OUT/summary.json. "
                f"Methods: {listing}; neus is the recommended one (va-neus is the paper's view-adaptive "
@@ -53,6 +54,7 @@ def build_parser(methods) -> argparse.ArgumentParser:
                              "instead of the input's alpha or the color key")
     parser.add_argument("--data-format", default="auto", choices=("auto", *FORMATS),
                         help="input format (default auto: detected from the input)")
+    add_rig_options(parser)
     parser.add_argument("--no-texture", action="store_true",
                         help="vertex colors only (no mesh.glb or mesh.obj, no turntable)")
     parser.add_argument("--texture-size", type=int, default=1024,
@@ -100,7 +102,8 @@ def main(argv: list[str] | None = None) -> int:
         result = reconstruct(args.input, args.out, method=args.method, quality=args.quality,
                              views=args.views if args.views is not None else "all", steps=args.steps,
                              device=args.device, texture=not args.no_texture, seed=args.seed, masks=args.masks,
-                             data_format=args.data_format, resume=args.resume, overwrite=args.overwrite,
+                             data_format=args.data_format, elevation=args.elevation, fov=args.fov, rig=args.rig,
+                             resume=args.resume, overwrite=args.overwrite,
                              texture_size=args.texture_size, mesh_resolution=args.mesh_resolution,
                              turntable_frames=args.turntable_frames, faces=args.faces, frame=args.frame,
                              show_progress=not args.quiet, on_message=None if args.quiet else say,

@@ -67,9 +67,7 @@ def add_object_options(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--data-format", default="auto", metavar="{auto," + ",".join(FORMATS) + "}",
                         help="input format (default auto: detected from the input)")
     parser.add_argument("--views", type=parse_views, default=None, help=VIEWS_HELP + " (default: all)")
-    parser.add_argument("--elevation", type=float, default=None,
-                        help="SyncDreamer: camera elevation in degrees (default 30)")
-    parser.add_argument("--rig", default=None, help="Zero123++: model version, v1.1 or v1.2 (default v1.2)")
+    add_rig_options(parser)
     parser.add_argument("--preset", default=None, help="a named variant of the method (see its presets)")
     parser.add_argument("--steps", type=int, default=None,
                         help="step budget (overrides the method's); steps past the method's schedule_steps "
@@ -80,7 +78,22 @@ def add_object_options(parser: argparse.ArgumentParser) -> None:
                         help="override any config value, e.g. pipeline.model.eikonal_weight=0.05")
 
 
-OBJECT_OPTIONS = ("data_format", "views", "elevation", "rig", "preset", "steps", "seed", "device", "overrides")
+def add_rig_options(parser: argparse.ArgumentParser) -> None:
+    """``--elevation``, ``--fov`` and ``--rig``: the cameras of a generator's output."""
+    parser.add_argument("--elevation", type=float, default=None,
+                        help="camera elevation in degrees of every view: SyncDreamer (default 30), SV3D (default "
+                             "10, the elevation sv3d_p was given), 4-view rigs and other rigs with one elevation")
+    parser.add_argument("--fov", type=float, default=None,
+                        help="field of view in degrees across a view, for perspective rigs (SV3D, Hunyuan3D, "
+                             "4-view rigs, Wonder3D++ persp, a rig file)")
+    parser.add_argument("--rig", default=None,
+                        help="a rig file (.json or .yaml: layout, view order, azimuths, elevations, camera; see "
+                             "docs/data.md) describing the input, a built-in rig's name, or for Zero123++ its "
+                             "model version, v1.1 or v1.2 (default v1.2)")
+
+
+OBJECT_OPTIONS = ("data_format", "views", "elevation", "fov", "rig", "preset", "steps", "seed", "device",
+                  "overrides")
 """The :func:`add_object_options` flags, by their names in :func:`va_plugin.api.build_config`."""
 
 

@@ -105,3 +105,28 @@ def resize(image: np.ndarray, width: int, height: int) -> np.ndarray:
         return image
     out = cv2.resize(image, (width, height), interpolation=cv2.INTER_AREA)
     return out[:, :, None] if out.ndim == 2 else out
+
+
+VIDEO_SUFFIXES = (".mp4", ".mov", ".avi", ".webm", ".mkv")
+
+
+def read_video(path: Path) -> list[np.ndarray]:
+    """Every frame of a video file as float32 RGB ``[H, W, 3]`` in [0, 1]; :class:`DataError` for a missing
+    file or one OpenCV cannot decode."""
+    path = Path(path)
+    if not path.is_file():
+        raise DataError(f"video not found: {path}")
+    with native_stderr_silenced():
+        capture = cv2.VideoCapture(str(path))
+        frames = []
+        try:
+            while capture.isOpened():
+                ok, frame = capture.read()
+                if not ok:
+                    break
+                frames.append(np.ascontiguousarray(frame[:, :, ::-1]).astype(np.float32) / 255.0)
+        finally:
+            capture.release()
+    if not frames:
+        raise DataError(f"cannot decode video (empty, corrupt or not a video): {path}")
+    return frames

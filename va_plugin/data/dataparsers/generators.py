@@ -30,7 +30,7 @@ from va_plugin.errors import ConfigError, DataError
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
 NORMALIZE_MODES = ("rig", "silhouettes")
 NORMAL_FRAMES = ("front", "view")
-LOW_SILHOUETTE_IOU = 0.8  # below this mean the rig does not explain the views
+LOW_SILHOUETTE_IOU = 0.8  # below this (mean, or any one view) the rig does not explain the views
 
 SYNCDREAMER_LAYOUT = "one image of 16 square views side by side in azimuth order, 256 high x 4096 wide"
 ZERO123PP_LAYOUT = "one image of 3 rows x 2 columns of square views in row-major order, 640 wide x 960 high"
@@ -210,17 +210,22 @@ class GeneratorDataParser(DataParser):
         if hull.points.numel() == 0:
             raise DataError(f"{self.config.data}: the {len(cameras)} views' silhouettes share no volume under the "
                             f"{self.format_name} rig; is the format (--data-format) or rig option right?")
+        centre, scale = torch.zeros(3), 1.0
         if mode == "silhouettes":
             centre, scale = unit_box_transform(*hull.bounds)
             cameras, hull = normalise_cameras(cameras, centre, scale), hull.moved(centre, scale)
         iou = hull.silhouette_iou
-        if sum(iou) / len(iou) < LOW_SILHOUETTE_IOU:
+        worst = min(range(len(iou)), key=iou.__getitem__)
+        if sum(iou) / len(iou) < LOW_SILHOUETTE_IOU or iou[worst] < LOW_SILHOUETTE_IOU:
             warnings.warn(f"{self.config.data}: the masks agree poorly with the {self.format_name} rig (mean "
-                          f"silhouette IoU {sum(iou) / len(iou):.2f}); check the format and rig options and "
-                          "the mask picture in the run folder", stacklevel=2)
+                          f"silhouette IoU {sum(iou) / len(iou):.2f}, view {worst} {iou[worst]:.2f}): the views "
+                          "may not fit the rig; check the format and rig options and the mask picture in the "
+                          "run folder", stacklevel=2)
         lower, upper = hull.bounds
         info = {"normalize": mode, "hull_bounds": [lower.tolist(), upper.tolist()],
-                "silhouette_iou": [round(v, 4) for v in iou]}
+                "silhouette_iou": [round(v, 4) for v in iou],
+                # the rig's world -> the training frame: x' = (x - centre) * scale
+                "rig_to_training": {"centre": [float(c) for c in centre], "scale": float(scale)}}
         return cameras, info
 
     def get_outputs(self, split: str = "train") -> DataparserOutputs | None:
@@ -387,17 +392,25 @@ class Wonder3DDataParser(GeneratorDataParser):
         paths = [wonder3d_file(folder, "normals", v) for v in self.view_names()]
         if not all(paths):
             return {}
-        normals = []
-        for k, path in enumerate(paths):
-            image = read_image(path)
-            if image.shape[:2] != masks.shape[1:3]:
-                raise DataError(f"{path} is {image.shape[1]}x{image.shape[0]}; the views are "
-                                f"{masks.shape[2]}x{masks.shape[1]}")
-            # stored as (n + 1) / 2 in OpenGL camera axes (x right, y up, z towards the viewer)
-            n_gl = torch.from_numpy(image[:, :, :3] * 2.0 - 1.0)
-            n_cv = n_gl * torch.tensor([1.0, -1.0, -1.0])
-            frame = 0 if self.config.normal_frame == "front" else k
-            world = torch.nn.functional.normalize(n_cv @ cameras.c2w[frame, :, :3].T, dim=-1)
-            alpha = torch.from_numpy(image[:, :, 3:] if image.shape[2] == 4 else masks[k])
-            normals.append(world * (alpha > 0.5))
-        return {"normals": torch.stack(normals), "normal_paths": [str(p) for p in paths]}
+        return read_normal_maps(paths, cameras, masks, self.config.normal_frame)
+
+
+def read_normal_maps(paths: Sequence[Path], cameras: Cameras, masks: np.ndarray, normal_frame: str,
+                     turns: int = 0) -> dict[str, Any]:
+    """World-space normal maps ``[n, H, W, 3]`` (zero outside their alpha, or the view's mask) from images
+    that store ``(n + 1) / 2`` in OpenGL camera axes of the first camera (``normal_frame`` "front") or of
+    each view's own ("view"); ``turns``: quarter turns that make each image upright, as its view."""
+    normals = []
+    for k, path in enumerate(paths):
+        image = np.ascontiguousarray(np.rot90(read_image(path), turns))
+        if image.shape[:2] != masks.shape[1:3]:
+            raise DataError(f"{path} is {image.shape[1]}x{image.shape[0]}; the views are "
+                            f"{masks.shape[2]}x{masks.shape[1]}")
+        # stored as (n + 1) / 2 in OpenGL camera axes (x right, y up, z towards the viewer)
+        n_gl = torch.from_numpy(image[:, :, :3] * 2.0 - 1.0)
+        n_cv = n_gl * torch.tensor([1.0, -1.0, -1.0])
+        frame = 0 if normal_frame == "front" else k
+        world = torch.nn.functional.normalize(n_cv @ cameras.c2w[frame, :, :3].T, dim=-1)
+        alpha = torch.from_numpy(np.ascontiguousarray(image[:, :, 3:] if image.shape[2] == 4 else masks[k]))
+        normals.append(world * (alpha > 0.5))
+    return {"normals": torch.stack(normals), "normal_paths": [str(p) for p in paths]}
