@@ -24,6 +24,8 @@ import copy
 import functools
 import json
 import math
+import numbers
+import os
 import threading
 import time
 import warnings
@@ -59,6 +61,7 @@ from va_plugin.export.texture import check_texture_size, texture_run_mesh
 from va_plugin.export.writing import check_texture_output
 from va_plugin.pipelines.base import Pipeline
 from va_plugin.registry import discover_methods
+from va_plugin.utils.arguments import check_hooks, check_kind, check_kinds
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.files import write_atomic
 from va_plugin.utils.memory import (
@@ -69,6 +72,7 @@ from va_plugin.utils.memory import (
     check_texture_memory,
     small_numpy_pages,
 )
+from va_plugin.utils.paths import optional_user_path, user_path, within
 
 __all__ = [
     "QUALITIES", "RECOMMENDED_METHOD", "VIEW_COUNTS", "LoadedRun", "MeshFiles", "Reconstruction",
@@ -110,6 +114,7 @@ def _override_text(key: str, value: Any) -> str:
 
 
 def _override_list(overrides: Mapping[str, Any] | Iterable[str] | None) -> list[str]:
+    check_kind("overrides", overrides, Mapping, Iterable, str, optional=True)
     if overrides is None:
         return []
     if isinstance(overrides, Mapping):
@@ -158,7 +163,13 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
     named variant of the method. ``views``, ``elevation``:
     SyncDreamer strips; ``rig``: Zero123++ grids; ``masks``: a mask folder or image for generator inputs.
     ``overrides``: ``{"pipeline.model.eikonal_weight": 0.05}`` (or ``"key=value"`` strings, or ``__`` for the
-    dots), applied last. ``out``: the run folder (default ``outputs/METHOD``)."""
+    dots), applied last. ``out``: the run folder (default ``outputs/METHOD``). Paths are taken with ``~``
+    expanded and resolved (:func:`~va_plugin.utils.paths.user_path`); the config holds them so."""
+    check_kinds(method=(method, str), data_format=(data_format, str), progress=(progress, bool))
+    check_kinds(optional=True, preset=(preset, str), rig=(rig, str), elevation=(elevation, numbers.Real),
+                seed=(seed, numbers.Integral), device=(device, (str, torch.device)))
+    data, masks = optional_user_path(data, "data"), optional_user_path(masks, "masks")
+    run_dir = user_path(out if out is not None else Path("outputs") / method, "out")
     methods = discover_methods()
     if method not in methods:
         raise ConfigError(f"unknown method {method!r}; known methods: {', '.join(methods)}")
@@ -168,12 +179,12 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
     config.method_name = method
     config.preset_name = preset or "default"  # not a field: what the run folder's manifest names
     if data is not None:
-        config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), data_format,
+        config.pipeline.datamanager.dataparser = resolve_dataparser(data, data_format,
                                                                     config.pipeline.datamanager.dataparser)
         _apply_generator_options(config.pipeline.datamanager.dataparser,
                                  {"views": check_views(views), "elevation": elevation, "rig": rig,
-                                  "masks": None if masks is None else Path(masks)})
-    config.output_dir = Path(out) if out is not None else Path("outputs") / method
+                                  "masks": masks})
+    config.output_dir = run_dir
     if steps is not None:
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ConfigError(f"--steps must be at least 1, got {steps}")
@@ -212,9 +223,10 @@ def check_training_memory(config: TrainerConfig) -> None:
 
 def _train(config: TrainerConfig, progress: Progress | None, on_message: Callable[[str], None] | None,
            before_training: Callable[[Any], None] | None = None, header: str | None = None,
-           stop: Stop = None, callbacks: Iterable[TrainingCallback] = ()) -> int | None:
+           stop: Stop = None, callbacks: Iterable[TrainingCallback] = (), resume: bool = False) -> int | None:
     """:func:`train`'s work in a claimed run folder; the step the run resumed from (None for a fresh run).
-    ``header``: a line said once the data has loaded (bad input stays one line: the error alone)."""
+    ``header``: a line said once the data has loaded (bad input stays one line: the error alone).
+    ``resume``: continue from the folder's checkpoints (what :func:`claim_run_folder` allowed)."""
     run_dir = Path(config.output_dir)
     say = on_message or _quiet
     trainer = config.setup()
@@ -224,7 +236,7 @@ def _train(config: TrainerConfig, progress: Progress | None, on_message: Callabl
             say(line)
     if before_training is not None:
         before_training(trainer)
-    done = train_run(config, resume=True, trainer=trainer, on_step=progress, stop=stop,
+    done = train_run(config, resume=resume, trainer=trainer, on_step=progress, stop=stop,
                      on_resume=lambda step: say(f"resuming {config.method_name} from step {step}"))
     health = done.trainer.guard.summary()
     if health:
@@ -252,11 +264,25 @@ def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = Fals
     SIGTERM or ``stop`` (a ``threading.Event`` set, or a callable returning True, polled between steps)
     end the step in progress, save a checkpoint and raise :class:`TrainingInterrupted`; ``resume=True``
     then continues exactly where it stopped."""
+    check_kind("config", config, TrainerConfig)
+    check_kinds(resume=(resume, bool), overwrite=(overwrite, bool), callbacks=(callbacks, Iterable))
+    check_hooks(progress, stop, on_message)
+    resolve_config_paths(config)
     check_training_memory(config)
     with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
-                          flag="--output-dir"):
-        _train(config, progress, on_message, stop=stop, callbacks=callbacks)
+                          flag="--output-dir") as continues:
+        _train(config, progress, on_message, stop=stop, callbacks=callbacks, resume=continues)
     return Path(config.output_dir)
+
+
+def resolve_config_paths(config: TrainerConfig) -> None:
+    """The run folder and the input paths of ``config`` (one built by hand, say) made absolute, ``~``
+    expanded, in place: every step of the run then reads and writes the same places."""
+    config.output_dir = user_path(config.output_dir, "output_dir")
+    parser = config.pipeline.datamanager.dataparser
+    for name in ("data", "masks"):
+        if getattr(parser, name, None) is not None:
+            setattr(parser, name, user_path(getattr(parser, name), name))
 
 
 @dataclass
@@ -281,7 +307,8 @@ def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRu
     through as it is)."""
     if isinstance(run, LoadedRun):
         return run
-    state = load_checkpoint(Path(run), map_location="cpu")
+    run = user_path(run, "run")
+    state = load_checkpoint(run, map_location="cpu")
     config = state.get("config_object")
     if config is None:
         raise CheckpointError(f"{state['path']} carries no config; it was not written by va-train")
@@ -301,7 +328,7 @@ def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRu
     # the schedules of the run's last trained step, as the trainer left them (no parameter is touched)
     pipeline.model.restore_step(max(int(state["step"]) - 1, 0))
     pipeline.model.eval()
-    return LoadedRun(Path(run), pipeline, state)
+    return LoadedRun(run, pipeline, state)
 
 
 @dataclass
@@ -413,7 +440,9 @@ def _locks_run(function: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(function)
     def locked(run: str | Path | LoadedRun, *args: Any, **kwargs: Any) -> Any:
-        with writing_into_run(run.path if isinstance(run, LoadedRun) else Path(run)):
+        if not isinstance(run, LoadedRun):
+            run = user_path(run, "run")
+        with writing_into_run(run.path if isinstance(run, LoadedRun) else run):
             return function(run, *args, **kwargs)
 
     return locked
@@ -440,11 +469,20 @@ def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution
     texel; ``harmonise=False`` skips levelling the views' color gains. Relative file names are inside the
     run folder; an ``output`` file outside a run folder that exists is refused unless ``overwrite``."""
     faces = faces_option(faces, max_faces)
-    run_path = run.path if isinstance(run, LoadedRun) else Path(run)
+    check_kinds(texture=(texture, bool), resolution=(resolution, numbers.Integral),
+                texture_size=(texture_size, numbers.Integral), fusion=(fusion, str), frame=(frame, str),
+                largest_component=(largest_component, bool), use_inconsistency=(use_inconsistency, bool),
+                progress=(progress, bool), overwrite=(overwrite, bool))
+    check_kinds(optional=True, output=(output, (str, os.PathLike, Iterable)),
+                vertex_colors=(vertex_colors, (str, os.PathLike)), harmonise=(harmonise, bool))
+    run_path = run.path if isinstance(run, LoadedRun) else user_path(run, "run")
     if output is None:
         outs = [run_path / TEXTURED_MESH_FILE, run_path / TEXTURED_OBJ_FILE] if texture else []
     else:
-        outs = [run_path / o for o in ([output] if isinstance(output, (str, Path)) else output)]
+        outs = [within(o, run_path, "output") for o in ([output] if isinstance(output, (str, os.PathLike))
+                                                        else output)]
+    if vertex_colors is not None:
+        vertex_colors = within(vertex_colors, run_path, "vertex_colors")
     check_mesh_options(resolution, texture, texture_size, outs, faces, frame)
     if texture and not outs:
         raise ConfigError("output names no file for the textured mesh")
@@ -515,6 +553,10 @@ def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, me
     mesh (``mesh``, or marching cubes at ``mesh_resolution``). ``scene``: a scene folder with
     ``scene.json`` other than the run's data. Written to ``RUN/eval.json`` (``output``; None: not
     written); ``render_dir`` also keeps the renders."""
+    scene, render_dir = optional_user_path(scene, "scene"), optional_user_path(render_dir, "render_dir")
+    check_kinds(mesh_resolution=(mesh_resolution, numbers.Integral), image_scale=(image_scale, numbers.Real),
+                n_samples=(n_samples, numbers.Integral), progress=(progress, bool))
+    check_kinds(optional=True, max_views=(max_views, numbers.Integral), output=(output, (str, os.PathLike)))
     check_evaluate_options(scene, mesh_resolution, image_scale, max_views)
     loaded = load_run(run, device)
     check_scorable(loaded, scene)
@@ -525,7 +567,7 @@ def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, me
                           image_scale, max_views, n_samples, progress=progress, mesh=mesh,
                           render_dir=None if render_dir is None else Path(render_dir))
     if output is not None:
-        write_json(loaded.path / output, result)
+        write_json(within(output, loaded.path, "output"), result)
     return result
 
 
@@ -536,6 +578,10 @@ def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, sc
     """Held-out views (or the training views when the run has none) and a turntable of the field, written
     to ``out_dir`` (default ``RUN/renders``); the held-out files and the turntable files. ``progress``:
     progress bars on stderr."""
+    out_dir = optional_user_path(out_dir, "out_dir")
+    check_kinds(scale=(scale, numbers.Real), frames=(frames, numbers.Integral),
+                turntable_resolution=(turntable_resolution, numbers.Integral), progress=(progress, bool))
+    check_kind("max_views", max_views, numbers.Integral, optional=True)
     if scale <= 0 or frames < 1 or turntable_resolution < 2:
         raise ConfigError("--scale must be positive, --frames at least 1 and --turntable-resolution at least 2")
     loaded = load_run(run, device)
@@ -543,7 +589,7 @@ def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, sc
     views = test if test is not None else loaded.pipeline.datamanager.train
     check_render_size(views.cameras.width, views.cameras.height, scale)
     check_image_side(turntable_resolution, "--turntable-resolution")
-    out = loaded.path / "renders" if out_dir is None else Path(out_dir)
+    out = loaded.path / "renders" if out_dir is None else out_dir
     held_out = render_test_views(loaded.pipeline, out / "test_views", scale=scale, max_views=max_views,
                                  progress=progress)
     turntable = render_turntable(loaded.pipeline.model, out / "turntable", n_frames=frames,
@@ -616,7 +662,9 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     Interrupted (Ctrl-C, SIGTERM, or ``stop`` as in :func:`train`), it saves a checkpoint and raises
     :class:`TrainingInterrupted`; call again with ``resume=True`` to continue."""
     started = time.perf_counter()
-    source = Path(input).expanduser()
+    source = user_path(input, "input")
+    run_dir = user_path(out if out is not None else Path("outputs") / "recon" / source.stem, "out")
+    check_reconstruct_kinds(locals())
     if quality not in QUALITIES:
         raise ConfigError(f"quality {quality!r} is not one of {', '.join(QUALITIES)}")
     if not source.exists():
@@ -630,7 +678,6 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     if turntable_frames < 0:
         raise ConfigError(f"--turntable-frames must be 0 or more, got {turntable_frames}")
     check_mesh_resolution(mesh_resolution, "--mesh-resolution")
-    run_dir = Path(out) if out is not None else Path("outputs") / "recon" / source.resolve().stem
     config = build_config(method, source, preset=QUALITIES[quality] if preset is None else preset, steps=steps,
                           seed=seed, device=device, out=run_dir, views=views, elevation=elevation, rig=rig,
                           masks=masks, data_format=data_format,
@@ -639,7 +686,8 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     config.num_threads = threads
     check_training_memory(config)
     say = on_message or _quiet
-    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config), command="recon"):
+    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
+                          command="recon") as continues:
         if threads > 0:
             torch.set_num_threads(threads)
 
@@ -649,8 +697,8 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
 
         resumed_from = _train(config, progress, say, before_training=check_bake, callbacks=callbacks,
                               header=f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} "
-                                     f"-> {run_dir}", stop=stop)
-        loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
+                                     f"-> {run_dir}", stop=stop, resume=continues)
+        loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its checkpoint holds it
         say(f"extracting the mesh ({mesh_resolution}^3 grid)")
         if texture:
             say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
@@ -666,13 +714,26 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
                               **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
             scores = {name: result[name] for name in METRICS if name in result}
         summary = _write_summary(loaded, files, turntable, scores, resumed_from, started,
-                                 input=str(input), method=method, quality=quality)
+                                 input=str(source), method=method, quality=quality)
     record = summary[1]
     return Reconstruction(run_dir=run_dir, mesh=Path(files.path), textured_mesh=files.textured_mesh,
                           turntable=turntable, summary=summary[0], seconds=record["seconds"],
                           train_seconds=record["train_seconds"], steps=record["steps"], views=record["views"],
                           masks=record["masks"], config=config, scores=scores, resumed_from_step=resumed_from,
                           record=record, files=files, textured_obj=files.textured_obj)
+
+
+def check_reconstruct_kinds(given: Mapping[str, Any]) -> None:
+    """Refuse, before any work, an argument of :func:`reconstruct` of the wrong kind (``given``: its
+    arguments by name)."""
+    check_kinds(**{name: (given[name], kinds) for name, kinds in (
+        ("method", str), ("quality", str), ("data_format", str), ("fusion", str), ("frame", str),
+        ("texture", bool), ("resume", bool), ("overwrite", bool), ("show_progress", bool),
+        ("texture_size", numbers.Integral), ("mesh_resolution", numbers.Integral),
+        ("turntable_frames", numbers.Integral), ("threads", numbers.Integral), ("callbacks", Iterable))})
+    check_kinds(optional=True, **{name: (given[name], kinds) for name, kinds in (
+        ("evaluate_options", Mapping), ("steps", numbers.Integral), ("faces", numbers.Integral))})
+    check_hooks(given["progress"], given["stop"], given["on_message"])
 
 
 def _write_summary(loaded: LoadedRun, files: MeshFiles, turntable: Path | None, scores: dict[str, float],
