@@ -3,6 +3,8 @@ interrupts reach the caller."""
 
 import functools
 import re
+import threading
+import warnings
 
 import pytest
 from conftest import REPO, write_syncdreamer_strip
@@ -125,3 +127,47 @@ def test_the_package_offers_the_api_lazily():
     assert va_plugin.export_mesh is api.export_mesh
     with pytest.raises(AttributeError):
         va_plugin.no_such_function  # noqa: B018 (the attribute access is the test)
+
+
+def test_a_call_training_beside_another_thread_is_warned_about():
+    """Two runs in two threads of one process share torch's random generator: each is told, the one starting
+    second at once and the other when it ends; one call alone, or calls one after another, hear nothing."""
+    entered, leave = threading.Event(), threading.Event()
+
+    def first():  # its warnings go to the main thread's record (warnings' state is the process's)
+        with api.training_in_this_thread("train()"):
+            entered.set()
+            leave.wait(10)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with api.training_in_this_thread("reconstruct()"):
+            pass
+        assert caught == []
+        other = threading.Thread(target=first)
+        other.start()
+        entered.wait(10)
+        with api.training_in_this_thread("reconstruct()"):
+            pass
+        leave.set()
+        other.join(10)
+    ours = [str(w.message) for w in caught if "another thread" in str(w.message)]
+    assert any(m.startswith("reconstruct() started while train() trains in another thread") for m in ours)
+    assert any(m.startswith("train() trained while another call trained") for m in ours)
+
+
+def test_an_interrupt_after_training_keeps_the_run_and_says_resume(strip, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    options = [str(strip), "--out", str(out), "--steps", "1", "--device", "cpu", "--no-texture",
+               "--mesh-resolution", "16", "--quiet", *(f"--set={k}={v}" for k, v in TINY.items())]
+    real = api.export_mesh
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(api, "export_mesh", ctrl_c)
+    assert recon.main(options) == 130
+    err = capsys.readouterr().err
+    assert "interrupted after training (the run is kept: step 1" in err and "--resume" in err
+    monkeypatch.setattr(api, "export_mesh", real)
+    assert recon.main([*options, "--resume"]) == 0 and (out / "mesh.ply").is_file()

@@ -20,6 +20,7 @@ training saves a checkpoint and raises :class:`~va_plugin.engine.trainer.Trainin
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import functools
 import json
@@ -29,7 +30,7 @@ import os
 import threading
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -46,6 +47,8 @@ from va_plugin.engine.run_folder import check_output_file, claim_run_folder, wri
 from va_plugin.engine.trainer import (
     TrainerConfig,
     TrainingInterrupted,
+    checkpoint_step,
+    list_checkpoints,
     load_checkpoint,
     schedule_steps_of,
     train_run,
@@ -244,6 +247,41 @@ def _train(config: TrainerConfig, progress: Progress | None, on_message: Callabl
     return done.resumed_from
 
 
+_TRAINING: dict[int, list] = {}
+"""Thread id -> [the call training in it, whether another thread trained meanwhile]."""
+_TRAINING_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def training_in_this_thread(call: str) -> Iterator[None]:
+    """Mark ``call`` as training in this thread for the block. Two runs at once in two threads of one
+    process share torch's global state (its random generator, its thread count), so neither gives the
+    results it gives alone: each of them says so with a warning (the one starting second at once, the
+    other when it ends)."""
+    me = threading.get_ident()
+    with _TRAINING_LOCK:
+        nested = me in _TRAINING
+        others = [entry for ident, entry in _TRAINING.items() if ident != me]
+        if not nested:
+            _TRAINING[me] = [call, bool(others)]
+        for entry in others:
+            entry[1] = True
+    advice = ("torch's random generator and thread count are shared by the threads of a process, so its results "
+              "differ from the same call run alone; run one at a time, or each in its own process (as va-batch "
+              "does)")
+    if others and not nested:
+        warnings.warn(f"{call} started while {others[0][0]} trains in another thread: {advice}", stacklevel=4)
+    try:
+        yield
+    finally:
+        if not nested:
+            with _TRAINING_LOCK:
+                entry = _TRAINING.pop(me)
+            if entry[1] and not others:
+                warnings.warn(f"{call} trained while another call trained in another thread: {advice}",
+                              stacklevel=4)
+
+
 def _quiet(line: str) -> None:
     """The default ``on_message``: nothing is shown."""
 
@@ -269,8 +307,9 @@ def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = Fals
     check_hooks(progress, stop, on_message)
     resolve_config_paths(config)
     check_training_memory(config)
-    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
-                          flag="--output-dir") as continues:
+    with training_in_this_thread("train()"), \
+            claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
+                             flag="--output-dir") as continues:
         _train(config, progress, on_message, stop=stop, callbacks=callbacks, resume=continues)
     return Path(config.output_dir)
 
@@ -686,8 +725,9 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     config.num_threads = threads
     check_training_memory(config)
     say = on_message or _quiet
-    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
-                          command="recon") as continues:
+    with training_in_this_thread("reconstruct()"), \
+            claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
+                             command="recon") as continues:
         if threads > 0:
             torch.set_num_threads(threads)
 
@@ -698,29 +738,52 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
         resumed_from = _train(config, progress, say, before_training=check_bake, callbacks=callbacks,
                               header=f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} "
                                      f"-> {run_dir}", stop=stop, resume=continues)
-        loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its checkpoint holds it
-        say(f"extracting the mesh ({mesh_resolution}^3 grid)")
-        if texture:
-            say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
-        files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
-                            fusion=fusion, faces=faces, frame=frame, progress=show_progress)
-        turntable = None
-        if texture and turntable_frames:
-            turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
-                                                progress=show_progress))
-        scores: dict[str, float] = {}
-        if has_ground_truth(loaded):
-            result = evaluate(loaded, mesh=files.mesh,
-                              **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
-            scores = {name: result[name] for name in METRICS if name in result}
-        summary = _write_summary(loaded, files, turntable, scores, resumed_from, started,
-                                 input=str(source), method=method, quality=quality)
+        with interrupt_after_training(run_dir):
+            loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its checkpoint holds it
+            say(f"extracting the mesh ({mesh_resolution}^3 grid)")
+            if texture:
+                say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
+            files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
+                                fusion=fusion, faces=faces, frame=frame, progress=show_progress)
+            turntable = None
+            if texture and turntable_frames:
+                turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
+                                                    progress=show_progress))
+            scores: dict[str, float] = {}
+            if has_ground_truth(loaded):
+                result = evaluate(loaded, mesh=files.mesh,
+                                  **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
+                scores = {name: result[name] for name in METRICS if name in result}
+            summary = _write_summary(loaded, files, turntable, scores, resumed_from, started,
+                                     input=str(source), method=method, quality=quality)
     record = summary[1]
     return Reconstruction(run_dir=run_dir, mesh=Path(files.path), textured_mesh=files.textured_mesh,
                           turntable=turntable, summary=summary[0], seconds=record["seconds"],
                           train_seconds=record["train_seconds"], steps=record["steps"], views=record["views"],
                           masks=record["masks"], config=config, scores=scores, resumed_from_step=resumed_from,
                           record=record, files=files, textured_obj=files.textured_obj)
+
+
+class InterruptedAfterTraining(TrainingInterrupted):
+    """Ctrl-C or SIGTERM after training ended (during the mesh, the texture, the turntable or the scores):
+    the trained run is whole in its last checkpoint, and the same call with ``resume=True`` skips the
+    training and does the rest."""
+
+    def __init__(self, step: int, checkpoint: Path | None) -> None:
+        super().__init__(step, checkpoint, saved=True, cause="after training")
+        self.args = (f"interrupted after training (the run is kept: step {step}, {checkpoint})",)
+
+
+@contextlib.contextmanager
+def interrupt_after_training(run_dir: Path) -> Iterator[None]:
+    """Turn an interrupt of the block (the work after training) into :class:`InterruptedAfterTraining`."""
+    try:
+        yield
+    except TrainingInterrupted:
+        raise
+    except KeyboardInterrupt:
+        kept = list_checkpoints(run_dir)
+        raise InterruptedAfterTraining(checkpoint_step(kept[-1]) if kept else 0, kept[-1] if kept else None) from None
 
 
 def check_reconstruct_kinds(given: Mapping[str, Any]) -> None:
