@@ -11,7 +11,7 @@ from collections.abc import Callable
 from pathlib import Path
 
 from va_plugin.engine.run_folder import check_output_dir
-from va_plugin.errors import VAError, one_line_warning
+from va_plugin.errors import VAError, once_each
 from va_plugin.export.frame import FRAMES
 from va_plugin.utils.interrupts import terminate_as_interrupt
 from va_plugin.utils.paths import user_path
@@ -44,7 +44,7 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
         shown = warnings.showwarning
-        warnings.showwarning = one_line_warning
+        warnings.showwarning = once_each()
         try:
             with terminate_as_interrupt():
                 return main(*args, **kwargs)
