@@ -4,6 +4,7 @@ interrupts reach the caller."""
 import functools
 import re
 import threading
+import time
 import warnings
 
 import pytest
@@ -91,6 +92,15 @@ def test_build_config_is_the_config_va_train_builds(strip, tmp_path):
 def test_bad_options_raise_one_line(strip, kwargs, message):
     with pytest.raises(ConfigError, match=re.escape(message)):
         va_plugin.build_config(**{"method": "neus", "data": strip, **kwargs})
+
+
+def test_a_face_count_no_mesh_can_have_is_refused_before_training(strip, tmp_path, capsys):
+    started = time.perf_counter()
+    with pytest.raises(ConfigError, match="--faces 1000000000 is more than a mesh here can have"):
+        va_plugin.reconstruct(strip, out=tmp_path / "out", faces=1_000_000_000)
+    assert recon.main([str(strip), "--out", str(tmp_path / "out"), "--faces", "1000000000"]) == 2
+    assert "at most about 2000000" in capsys.readouterr().err
+    assert time.perf_counter() - started < 10 and not (tmp_path / "out").exists()
 
 
 def test_progress_and_an_interrupt_reach_the_caller(strip, tmp_path):

@@ -409,6 +409,10 @@ def check_faces(faces: int | None, texture: bool) -> None:
         return
     if isinstance(faces, bool) or not isinstance(faces, int) or faces < 0 or 0 < faces < 4:
         raise ConfigError(f"--faces must be 0 (keep every face) or at least 4, got {faces}")
+    if faces > MAX_FACES:
+        raise ConfigError(f"--faces {faces} is more than a mesh here can have (the finest grid, "
+                          f"{FACES_MAX_RESOLUTION}^3, gives at most about {MAX_FACES}); ask for at most {MAX_FACES}, "
+                          "or 0 to keep every face of the extracted mesh")
     if not texture:
         raise ConfigError("--faces sets the face count of the textured mesh: it needs --texture (va-export mesh), "
                           "and no --no-texture (va-recon, va-batch)")
@@ -445,6 +449,10 @@ def check_mesh_options(resolution: int, texture: bool = False, texture_size: int
 
 FACES_MAX_RESOLUTION = 384
 """Finest marching-cubes grid that :func:`mesh_for_faces` extracts to reach a ``faces`` count."""
+MAX_FACES = 2_000_000
+"""Most faces ``faces`` may ask for: a surface on the :data:`FACES_MAX_RESOLUTION` grid has about
+2 pi R^2 faces when it fills the grid (0.93 million at 384), twice that when it is wrinkled; a larger count
+could not be met, and would only cost the finest extraction before its warning."""
 FACES_MARGIN = 1.15
 """How far past the asked face count the finer grid aims (a surface's faces grow as the grid squared)."""
 
