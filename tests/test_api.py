@@ -3,6 +3,9 @@ interrupts reach the caller."""
 
 import functools
 import re
+import threading
+import time
+import warnings
 
 import pytest
 from conftest import REPO, write_syncdreamer_strip
@@ -91,6 +94,15 @@ def test_bad_options_raise_one_line(strip, kwargs, message):
         va_plugin.build_config(**{"method": "neus", "data": strip, **kwargs})
 
 
+def test_a_face_count_no_mesh_can_have_is_refused_before_training(strip, tmp_path, capsys):
+    started = time.perf_counter()
+    with pytest.raises(ConfigError, match="--faces 1000000000 is more than a mesh here can have"):
+        va_plugin.reconstruct(strip, out=tmp_path / "out", faces=1_000_000_000)
+    assert recon.main([str(strip), "--out", str(tmp_path / "out"), "--faces", "1000000000"]) == 2
+    assert "at most about 2000000" in capsys.readouterr().err
+    assert time.perf_counter() - started < 10 and not (tmp_path / "out").exists()
+
+
 def test_progress_and_an_interrupt_reach_the_caller(strip, tmp_path):
     config = va_plugin.build_config("neus", strip, steps=4, device="cpu", out=tmp_path / "run", progress=False,
                                     overrides=TINY)
@@ -125,3 +137,47 @@ def test_the_package_offers_the_api_lazily():
     assert va_plugin.export_mesh is api.export_mesh
     with pytest.raises(AttributeError):
         va_plugin.no_such_function  # noqa: B018 (the attribute access is the test)
+
+
+def test_a_call_training_beside_another_thread_is_warned_about():
+    """Two runs in two threads of one process share torch's random generator: each is told, the one starting
+    second at once and the other when it ends; one call alone, or calls one after another, hear nothing."""
+    entered, leave = threading.Event(), threading.Event()
+
+    def first():  # its warnings go to the main thread's record (warnings' state is the process's)
+        with api.training_in_this_thread("train()"):
+            entered.set()
+            leave.wait(10)
+
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        with api.training_in_this_thread("reconstruct()"):
+            pass
+        assert caught == []
+        other = threading.Thread(target=first)
+        other.start()
+        entered.wait(10)
+        with api.training_in_this_thread("reconstruct()"):
+            pass
+        leave.set()
+        other.join(10)
+    ours = [str(w.message) for w in caught if "another thread" in str(w.message)]
+    assert any(m.startswith("reconstruct() started while train() trains in another thread") for m in ours)
+    assert any(m.startswith("train() trained while another call trained") for m in ours)
+
+
+def test_an_interrupt_after_training_keeps_the_run_and_says_resume(strip, tmp_path, monkeypatch, capsys):
+    out = tmp_path / "out"
+    options = [str(strip), "--out", str(out), "--steps", "1", "--device", "cpu", "--no-texture",
+               "--mesh-resolution", "16", "--quiet", *(f"--set={k}={v}" for k, v in TINY.items())]
+    real = api.export_mesh
+
+    def ctrl_c(*args, **kwargs):
+        raise KeyboardInterrupt
+
+    monkeypatch.setattr(api, "export_mesh", ctrl_c)
+    assert recon.main(options) == 130
+    err = capsys.readouterr().err
+    assert "interrupted after training (the run is kept: step 1" in err and "--resume" in err
+    monkeypatch.setattr(api, "export_mesh", real)
+    assert recon.main([*options, "--resume"]) == 0 and (out / "mesh.ply").is_file()

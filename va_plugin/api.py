@@ -20,14 +20,17 @@ training saves a checkpoint and raises :class:`~va_plugin.engine.trainer.Trainin
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import functools
 import json
 import math
+import numbers
+import os
 import threading
 import time
 import warnings
-from collections.abc import Callable, Iterable, Mapping
+from collections.abc import Callable, Iterable, Iterator, Mapping
 from dataclasses import dataclass, field, fields
 from pathlib import Path
 from typing import Any
@@ -46,6 +49,8 @@ from va_plugin.engine.run_folder import check_output_file, claim_run_folder, wri
 from va_plugin.engine.trainer import (
     TrainerConfig,
     TrainingInterrupted,
+    checkpoint_step,
+    list_checkpoints,
     load_checkpoint,
     schedule_steps_of,
     train_run,
@@ -61,6 +66,7 @@ from va_plugin.export.texture import check_texture_size, texture_run_mesh
 from va_plugin.export.writing import check_texture_output
 from va_plugin.pipelines.base import Pipeline
 from va_plugin.registry import discover_methods
+from va_plugin.utils.arguments import check_hooks, check_kind, check_kinds
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.files import write_atomic
 from va_plugin.utils.memory import (
@@ -71,6 +77,7 @@ from va_plugin.utils.memory import (
     check_texture_memory,
     small_numpy_pages,
 )
+from va_plugin.utils.paths import optional_user_path, user_path, within
 
 __all__ = [
     "QUALITIES", "RECOMMENDED_METHOD", "VIEW_COUNTS", "LoadedRun", "MeshFiles", "Reconstruction",
@@ -114,6 +121,7 @@ def _override_text(key: str, value: Any) -> str:
 
 
 def _override_list(overrides: Mapping[str, Any] | Iterable[str] | None) -> list[str]:
+    check_kind("overrides", overrides, Mapping, Iterable, str, optional=True)
     if overrides is None:
         return []
     if isinstance(overrides, Mapping):
@@ -179,7 +187,14 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
     a built-in rig's name (same as ``data_format``), or a Zero123++ version (v1.1, v1.2); ``masks``: a mask
     folder or image for generator inputs.
     ``overrides``: ``{"pipeline.model.eikonal_weight": 0.05}`` (or ``"key=value"`` strings, or ``__`` for the
-    dots), applied last. ``out``: the run folder (default ``outputs/METHOD``)."""
+    dots), applied last. ``out``: the run folder (default ``outputs/METHOD``). Paths are taken with ``~``
+    expanded and resolved (:func:`~va_plugin.utils.paths.user_path`); the config holds them so."""
+    check_kinds(method=(method, str), data_format=(data_format, str), progress=(progress, bool))
+    check_kinds(optional=True, preset=(preset, str), rig=(rig, (str, Path)), elevation=(elevation, numbers.Real),
+                fov=(fov, numbers.Real),
+                seed=(seed, numbers.Integral), device=(device, (str, torch.device)))
+    data, masks = optional_user_path(data, "data"), optional_user_path(masks, "masks")
+    run_dir = user_path(out if out is not None else Path("outputs") / method, "out")
     methods = discover_methods()
     if method not in methods:
         raise ConfigError(f"unknown method {method!r}; known methods: {', '.join(methods)}")
@@ -190,13 +205,13 @@ def build_config(method: str = RECOMMENDED_METHOD, data: str | Path | None = Non
     config.preset_name = preset or "default"  # not a field: what the run folder's manifest names
     if data is not None:
         version, rig_file, data_format = split_rig_option(rig, data_format)
-        config.pipeline.datamanager.dataparser = resolve_dataparser(Path(data), data_format,
+        config.pipeline.datamanager.dataparser = resolve_dataparser(data, data_format,
                                                                     config.pipeline.datamanager.dataparser,
-                                                                    rig_file=rig_file)
+                                                                    rig_file=optional_user_path(rig_file, "rig"))
         _apply_generator_options(config.pipeline.datamanager.dataparser,
                                  {"views": check_views(views), "elevation": elevation, "rig": version, "fov": fov,
-                                  "masks": None if masks is None else Path(masks)})
-    config.output_dir = Path(out) if out is not None else Path("outputs") / method
+                                  "masks": masks})
+    config.output_dir = run_dir
     if steps is not None:
         if isinstance(steps, bool) or not isinstance(steps, int) or steps < 1:
             raise ConfigError(f"--steps must be at least 1, got {steps}")
@@ -235,9 +250,10 @@ def check_training_memory(config: TrainerConfig) -> None:
 
 def _train(config: TrainerConfig, progress: Progress | None, on_message: Callable[[str], None] | None,
            before_training: Callable[[Any], None] | None = None, header: str | None = None,
-           stop: Stop = None, callbacks: Iterable[TrainingCallback] = ()) -> int | None:
+           stop: Stop = None, callbacks: Iterable[TrainingCallback] = (), resume: bool = False) -> int | None:
     """:func:`train`'s work in a claimed run folder; the step the run resumed from (None for a fresh run).
-    ``header``: a line said once the data has loaded (bad input stays one line: the error alone)."""
+    ``header``: a line said once the data has loaded (bad input stays one line: the error alone).
+    ``resume``: continue from the folder's checkpoints (what :func:`claim_run_folder` allowed)."""
     run_dir = Path(config.output_dir)
     say = on_message or _quiet
     trainer = config.setup()
@@ -247,12 +263,47 @@ def _train(config: TrainerConfig, progress: Progress | None, on_message: Callabl
             say(line)
     if before_training is not None:
         before_training(trainer)
-    done = train_run(config, resume=True, trainer=trainer, on_step=progress, stop=stop,
+    done = train_run(config, resume=resume, trainer=trainer, on_step=progress, stop=stop,
                      on_resume=lambda step: say(f"resuming {config.method_name} from step {step}"))
     health = done.trainer.guard.summary()
     if health:
         warnings.warn(health, stacklevel=3)
     return done.resumed_from
+
+
+_TRAINING: dict[int, list] = {}
+"""Thread id -> [the call training in it, whether another thread trained meanwhile]."""
+_TRAINING_LOCK = threading.Lock()
+
+
+@contextlib.contextmanager
+def training_in_this_thread(call: str) -> Iterator[None]:
+    """Mark ``call`` as training in this thread for the block. Two runs at once in two threads of one
+    process share torch's global state (its random generator, its thread count), so neither gives the
+    results it gives alone: each of them says so with a warning (the one starting second at once, the
+    other when it ends)."""
+    me = threading.get_ident()
+    with _TRAINING_LOCK:
+        nested = me in _TRAINING
+        others = [entry for ident, entry in _TRAINING.items() if ident != me]
+        if not nested:
+            _TRAINING[me] = [call, bool(others)]
+        for entry in others:
+            entry[1] = True
+    advice = ("torch's random generator and thread count are shared by the threads of a process, so its results "
+              "differ from the same call run alone; run one at a time, or each in its own process (as va-batch "
+              "does)")
+    if others and not nested:
+        warnings.warn(f"{call} started while {others[0][0]} trains in another thread: {advice}", stacklevel=4)
+    try:
+        yield
+    finally:
+        if not nested:
+            with _TRAINING_LOCK:
+                entry = _TRAINING.pop(me)
+            if entry[1] and not others:
+                warnings.warn(f"{call} trained while another call trained in another thread: {advice}",
+                              stacklevel=4)
 
 
 def _quiet(line: str) -> None:
@@ -275,11 +326,26 @@ def train(config: TrainerConfig, *, resume: bool = False, overwrite: bool = Fals
     SIGTERM or ``stop`` (a ``threading.Event`` set, or a callable returning True, polled between steps)
     end the step in progress, save a checkpoint and raise :class:`TrainingInterrupted`; ``resume=True``
     then continues exactly where it stopped."""
+    check_kind("config", config, TrainerConfig)
+    check_kinds(resume=(resume, bool), overwrite=(overwrite, bool), callbacks=(callbacks, Iterable))
+    check_hooks(progress, stop, on_message)
+    resolve_config_paths(config)
     check_training_memory(config)
-    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
-                          flag="--output-dir"):
-        _train(config, progress, on_message, stop=stop, callbacks=callbacks)
+    with training_in_this_thread("train()"), \
+            claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
+                             flag="--output-dir") as continues:
+        _train(config, progress, on_message, stop=stop, callbacks=callbacks, resume=continues)
     return Path(config.output_dir)
+
+
+def resolve_config_paths(config: TrainerConfig) -> None:
+    """The run folder and the input paths of ``config`` (one built by hand, say) made absolute, ``~``
+    expanded, in place: every step of the run then reads and writes the same places."""
+    config.output_dir = user_path(config.output_dir, "output_dir")
+    parser = config.pipeline.datamanager.dataparser
+    for name in ("data", "masks"):
+        if getattr(parser, name, None) is not None:
+            setattr(parser, name, user_path(getattr(parser, name), name))
 
 
 @dataclass
@@ -304,7 +370,8 @@ def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRu
     through as it is)."""
     if isinstance(run, LoadedRun):
         return run
-    state = load_checkpoint(Path(run), map_location="cpu")
+    run = user_path(run, "run")
+    state = load_checkpoint(run, map_location="cpu")
     config = state.get("config_object")
     if config is None:
         raise CheckpointError(f"{state['path']} carries no config; it was not written by va-train")
@@ -324,7 +391,7 @@ def load_run(run: str | Path | LoadedRun, device: str | None = None) -> LoadedRu
     # the schedules of the run's last trained step, as the trainer left them (no parameter is touched)
     pipeline.model.restore_step(max(int(state["step"]) - 1, 0))
     pipeline.model.eval()
-    return LoadedRun(Path(run), pipeline, state)
+    return LoadedRun(run, pipeline, state)
 
 
 @dataclass
@@ -366,6 +433,10 @@ def check_faces(faces: int | None, texture: bool) -> None:
         return
     if isinstance(faces, bool) or not isinstance(faces, int) or faces < 0 or 0 < faces < 4:
         raise ConfigError(f"--faces must be 0 (keep every face) or at least 4, got {faces}")
+    if faces > MAX_FACES:
+        raise ConfigError(f"--faces {faces} is more than a mesh here can have (the finest grid, "
+                          f"{FACES_MAX_RESOLUTION}^3, gives at most about {MAX_FACES}); ask for at most {MAX_FACES}, "
+                          "or 0 to keep every face of the extracted mesh")
     if not texture:
         raise ConfigError("--faces sets the face count of the textured mesh: it needs --texture (va-export mesh), "
                           "and no --no-texture (va-recon, va-batch)")
@@ -402,6 +473,10 @@ def check_mesh_options(resolution: int, texture: bool = False, texture_size: int
 
 FACES_MAX_RESOLUTION = 384
 """Finest marching-cubes grid that :func:`mesh_for_faces` extracts to reach a ``faces`` count."""
+MAX_FACES = 2_000_000
+"""Most faces ``faces`` may ask for: a surface on the :data:`FACES_MAX_RESOLUTION` grid has about
+2 pi R^2 faces when it fills the grid (0.93 million at 384), twice that when it is wrinkled; a larger count
+could not be met, and would only cost the finest extraction before its warning."""
 FACES_MARGIN = 1.15
 """How far past the asked face count the finer grid aims (a surface's faces grow as the grid squared)."""
 
@@ -436,7 +511,9 @@ def _locks_run(function: Callable[..., Any]) -> Callable[..., Any]:
 
     @functools.wraps(function)
     def locked(run: str | Path | LoadedRun, *args: Any, **kwargs: Any) -> Any:
-        with writing_into_run(run.path if isinstance(run, LoadedRun) else Path(run)):
+        if not isinstance(run, LoadedRun):
+            run = user_path(run, "run")
+        with writing_into_run(run.path if isinstance(run, LoadedRun) else run):
             return function(run, *args, **kwargs)
 
     return locked
@@ -463,11 +540,20 @@ def export_mesh(run: str | Path | LoadedRun, *, texture: bool = True, resolution
     texel; ``harmonise=False`` skips levelling the views' color gains. Relative file names are inside the
     run folder; an ``output`` file outside a run folder that exists is refused unless ``overwrite``."""
     faces = faces_option(faces, max_faces)
-    run_path = run.path if isinstance(run, LoadedRun) else Path(run)
+    check_kinds(texture=(texture, bool), resolution=(resolution, numbers.Integral),
+                texture_size=(texture_size, numbers.Integral), fusion=(fusion, str), frame=(frame, str),
+                largest_component=(largest_component, bool), use_inconsistency=(use_inconsistency, bool),
+                progress=(progress, bool), overwrite=(overwrite, bool))
+    check_kinds(optional=True, output=(output, (str, os.PathLike, Iterable)),
+                vertex_colors=(vertex_colors, (str, os.PathLike)), harmonise=(harmonise, bool))
+    run_path = run.path if isinstance(run, LoadedRun) else user_path(run, "run")
     if output is None:
         outs = [run_path / TEXTURED_MESH_FILE, run_path / TEXTURED_OBJ_FILE] if texture else []
     else:
-        outs = [run_path / o for o in ([output] if isinstance(output, (str, Path)) else output)]
+        outs = [within(o, run_path, "output") for o in ([output] if isinstance(output, (str, os.PathLike))
+                                                        else output)]
+    if vertex_colors is not None:
+        vertex_colors = within(vertex_colors, run_path, "vertex_colors")
     check_mesh_options(resolution, texture, texture_size, outs, faces, frame)
     if texture and not outs:
         raise ConfigError("output names no file for the textured mesh")
@@ -538,6 +624,10 @@ def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, me
     mesh (``mesh``, or marching cubes at ``mesh_resolution``). ``scene``: a scene folder with
     ``scene.json`` other than the run's data. Written to ``RUN/eval.json`` (``output``; None: not
     written); ``render_dir`` also keeps the renders."""
+    scene, render_dir = optional_user_path(scene, "scene"), optional_user_path(render_dir, "render_dir")
+    check_kinds(mesh_resolution=(mesh_resolution, numbers.Integral), image_scale=(image_scale, numbers.Real),
+                n_samples=(n_samples, numbers.Integral), progress=(progress, bool))
+    check_kinds(optional=True, max_views=(max_views, numbers.Integral), output=(output, (str, os.PathLike)))
     check_evaluate_options(scene, mesh_resolution, image_scale, max_views)
     loaded = load_run(run, device)
     check_scorable(loaded, scene)
@@ -548,7 +638,7 @@ def evaluate(run: str | Path | LoadedRun, *, scene: str | Path | None = None, me
                           image_scale, max_views, n_samples, progress=progress, mesh=mesh,
                           render_dir=None if render_dir is None else Path(render_dir))
     if output is not None:
-        write_json(loaded.path / output, result)
+        write_json(within(output, loaded.path, "output"), result)
     return result
 
 
@@ -559,6 +649,10 @@ def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, sc
     """Held-out views (or the training views when the run has none) and a turntable of the field, written
     to ``out_dir`` (default ``RUN/renders``); the held-out files and the turntable files. ``progress``:
     progress bars on stderr."""
+    out_dir = optional_user_path(out_dir, "out_dir")
+    check_kinds(scale=(scale, numbers.Real), frames=(frames, numbers.Integral),
+                turntable_resolution=(turntable_resolution, numbers.Integral), progress=(progress, bool))
+    check_kind("max_views", max_views, numbers.Integral, optional=True)
     if scale <= 0 or frames < 1 or turntable_resolution < 2:
         raise ConfigError("--scale must be positive, --frames at least 1 and --turntable-resolution at least 2")
     loaded = load_run(run, device)
@@ -566,7 +660,7 @@ def render(run: str | Path | LoadedRun, out_dir: str | Path | None = None, *, sc
     views = test if test is not None else loaded.pipeline.datamanager.train
     check_render_size(views.cameras.width, views.cameras.height, scale)
     check_image_side(turntable_resolution, "--turntable-resolution")
-    out = loaded.path / "renders" if out_dir is None else Path(out_dir)
+    out = loaded.path / "renders" if out_dir is None else out_dir
     held_out = render_test_views(loaded.pipeline, out / "test_views", scale=scale, max_views=max_views,
                                  progress=progress)
     turntable = render_turntable(loaded.pipeline.model, out / "turntable", n_frames=frames,
@@ -640,7 +734,9 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     Interrupted (Ctrl-C, SIGTERM, or ``stop`` as in :func:`train`), it saves a checkpoint and raises
     :class:`TrainingInterrupted`; call again with ``resume=True`` to continue."""
     started = time.perf_counter()
-    source = Path(input).expanduser()
+    source = user_path(input, "input")
+    run_dir = user_path(out if out is not None else Path("outputs") / "recon" / source.stem, "out")
+    check_reconstruct_kinds(locals())
     if quality not in QUALITIES:
         raise ConfigError(f"quality {quality!r} is not one of {', '.join(QUALITIES)}")
     if not source.exists():
@@ -654,7 +750,6 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     if turntable_frames < 0:
         raise ConfigError(f"--turntable-frames must be 0 or more, got {turntable_frames}")
     check_mesh_resolution(mesh_resolution, "--mesh-resolution")
-    run_dir = Path(out) if out is not None else Path("outputs") / "recon" / source.resolve().stem
     config = build_config(method, source, preset=QUALITIES[quality] if preset is None else preset, steps=steps,
                           seed=seed, device=device, out=run_dir, views=views, elevation=elevation, rig=rig,
                           masks=masks, data_format=data_format, fov=fov,
@@ -663,7 +758,9 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
     config.num_threads = threads
     check_training_memory(config)
     say = on_message or _quiet
-    with claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config), command="recon"):
+    with training_in_this_thread("reconstruct()"), \
+            claim_run_folder(config, resume=resume, overwrite=overwrite, preset=preset_of(config),
+                             command="recon") as continues:
         if threads > 0:
             torch.set_num_threads(threads)
 
@@ -673,30 +770,66 @@ def reconstruct(input: str | Path, out: str | Path | None = None, method: str = 
 
         resumed_from = _train(config, progress, say, before_training=check_bake, callbacks=callbacks,
                               header=f"{method} ({quality if preset is None else 'preset ' + preset}) on {input} "
-                                     f"-> {run_dir}", stop=stop)
-        loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its last checkpoint holds it
-        say(f"extracting the mesh ({mesh_resolution}^3 grid)")
-        if texture:
-            say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
-        files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
-                            fusion=fusion, faces=faces, frame=frame, progress=show_progress)
-        turntable = None
-        if texture and turntable_frames:
-            turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
-                                                progress=show_progress))
-        scores: dict[str, float] = {}
-        if has_ground_truth(loaded):
-            result = evaluate(loaded, mesh=files.mesh,
-                              **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
-            scores = {name: result[name] for name in METRICS if name in result}
-        summary = _write_summary(loaded, files, turntable, scores, resumed_from, started,
-                                 input=str(input), method=method, quality=quality)
+                                     f"-> {run_dir}", stop=stop, resume=continues)
+        with interrupt_after_training(run_dir):
+            loaded = load_run(run_dir, device)  # what va-export and va-eval see: the run as its checkpoint holds it
+            say(f"extracting the mesh ({mesh_resolution}^3 grid)")
+            if texture:
+                say(f"UV-unwrapping the mesh and baking a {texture_size}^2 texture from the views")
+            files = export_mesh(loaded, texture=texture, resolution=mesh_resolution, texture_size=texture_size,
+                                fusion=fusion, faces=faces, frame=frame, progress=show_progress)
+            turntable = None
+            if texture and turntable_frames:
+                turntable = Path(textured_turntable(files.textured, run_dir / TURNTABLE_DIR, turntable_frames,
+                                                    progress=show_progress))
+            scores: dict[str, float] = {}
+            if has_ground_truth(loaded):
+                result = evaluate(loaded, mesh=files.mesh,
+                                  **{"mesh_resolution": mesh_resolution, **(evaluate_options or {})})
+                scores = {name: result[name] for name in METRICS if name in result}
+            summary = _write_summary(loaded, files, turntable, scores, resumed_from, started,
+                                     input=str(source), method=method, quality=quality)
     record = summary[1]
     return Reconstruction(run_dir=run_dir, mesh=Path(files.path), textured_mesh=files.textured_mesh,
                           turntable=turntable, summary=summary[0], seconds=record["seconds"],
                           train_seconds=record["train_seconds"], steps=record["steps"], views=record["views"],
                           masks=record["masks"], config=config, scores=scores, resumed_from_step=resumed_from,
                           record=record, files=files, textured_obj=files.textured_obj)
+
+
+class InterruptedAfterTraining(TrainingInterrupted):
+    """Ctrl-C or SIGTERM after training ended (during the mesh, the texture, the turntable or the scores):
+    the trained run is whole in its last checkpoint, and the same call with ``resume=True`` skips the
+    training and does the rest."""
+
+    def __init__(self, step: int, checkpoint: Path | None) -> None:
+        super().__init__(step, checkpoint, saved=True, cause="after training")
+        self.args = (f"interrupted after training (the run is kept: step {step}, {checkpoint})",)
+
+
+@contextlib.contextmanager
+def interrupt_after_training(run_dir: Path) -> Iterator[None]:
+    """Turn an interrupt of the block (the work after training) into :class:`InterruptedAfterTraining`."""
+    try:
+        yield
+    except TrainingInterrupted:
+        raise
+    except KeyboardInterrupt:
+        kept = list_checkpoints(run_dir)
+        raise InterruptedAfterTraining(checkpoint_step(kept[-1]) if kept else 0, kept[-1] if kept else None) from None
+
+
+def check_reconstruct_kinds(given: Mapping[str, Any]) -> None:
+    """Refuse, before any work, an argument of :func:`reconstruct` of the wrong kind (``given``: its
+    arguments by name)."""
+    check_kinds(**{name: (given[name], kinds) for name, kinds in (
+        ("method", str), ("quality", str), ("data_format", str), ("fusion", str), ("frame", str),
+        ("texture", bool), ("resume", bool), ("overwrite", bool), ("show_progress", bool),
+        ("texture_size", numbers.Integral), ("mesh_resolution", numbers.Integral),
+        ("turntable_frames", numbers.Integral), ("threads", numbers.Integral), ("callbacks", Iterable))})
+    check_kinds(optional=True, **{name: (given[name], kinds) for name, kinds in (
+        ("evaluate_options", Mapping), ("steps", numbers.Integral), ("faces", numbers.Integral))})
+    check_hooks(given["progress"], given["stop"], given["on_message"])
 
 
 def _write_summary(loaded: LoadedRun, files: MeshFiles, turntable: Path | None, scores: dict[str, float],

@@ -26,5 +26,19 @@ def one_line_warning(message, category, filename, lineno, file=None, line=None) 
     print(f"warning: {message}", file=sys.stderr if file is None else file)
 
 
+def once_each():
+    """A ``warnings.showwarning`` like :func:`one_line_warning` that shows each message once: a command
+    reads its input again after training (to export the run as its checkpoint holds it), and the data's
+    warnings said during training need no second time."""
+    shown: set[str] = set()
+
+    def show(message, category, filename, lineno, file=None, line=None) -> None:
+        if str(message) not in shown:
+            shown.add(str(message))
+            one_line_warning(message, category, filename, lineno, file, line)
+
+    return show
+
+
 class OutputError(VAError):
     """A file of a run that could not be written (a full disk, a read-only folder); what was kept is said."""

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import torch
 from conftest import CLI_TINY as TINY
-from conftest import one_line_error
+from conftest import one_line_error, write_syncdreamer_strip
 
 from va_plugin.api import build_config
 from va_plugin.cli import eval as eval_cli
@@ -18,7 +18,7 @@ from va_plugin.cli import train as train_cli
 from va_plugin.data.datamanager import DataManager, DataManagerConfig
 from va_plugin.data.dataparsers import detect_format
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
-from va_plugin.data.images import write_image
+from va_plugin.data.images import read_image, write_image
 from va_plugin.data.rigs import WONDER3D_VIEWS
 from va_plugin.engine.metrics_log import append_record
 from va_plugin.errors import ConfigError
@@ -108,6 +108,27 @@ def test_views_sharing_a_pose_are_named_at_data_load(tiny_scene, tmp_path):
     (scene / "transforms_train.json").write_text(json.dumps(meta))
     with pytest.warns(UserWarning, match="training views with the same camera pose: 0, 2; a view repeated"):
         DataManager(DataManagerConfig(dataparser=TransformsDataParserConfig(data=scene)))
+
+
+def test_a_single_view_scene_is_warned_about_at_data_load(tiny_scene, tmp_path):
+    scene = tmp_path / "scene"
+    shutil.copytree(tiny_scene, scene)
+    meta = json.loads((scene / "transforms_train.json").read_text())
+    meta["frames"] = meta["frames"][:1]
+    (scene / "transforms_train.json").write_text(json.dumps(meta))
+    with pytest.warns(UserWarning, match="only one training view: a single viewpoint gives no depth"):
+        DataManager(DataManagerConfig(dataparser=TransformsDataParserConfig(data=scene)))
+
+
+def test_a_data_warning_is_printed_once_though_the_input_is_read_twice(tmp_path, capsys):
+    """va-recon reads its input for training and again for the mesh: the warning is said once."""
+    rgb = read_image(write_syncdreamer_strip(tmp_path / "rgb.png", tile=32))
+    write_image(tmp_path / "rgba.png", np.concatenate([rgb, np.ones_like(rgb[..., :1])], -1))
+    assert recon_cli.main([str(tmp_path / "rgba.png"), "--out", str(tmp_path / "out"), "--steps", "1",
+                           "--no-texture", "--mesh-resolution", "16", "--device", "cpu", "--quiet",
+                           *(f"--set={k}=4" for k in ("pipeline.datamanager.rays_per_batch", "pipeline.model.n_samples",
+                                                     "pipeline.model.n_importance"))]) == 0
+    assert capsys.readouterr().err.count("alpha channel is opaque everywhere") == 1
 
 
 def test_the_training_summary_leaves_out_what_the_log_lacks(tmp_path):

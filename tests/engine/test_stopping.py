@@ -4,7 +4,9 @@ in process: each stop resumes bit for bit, each failed write is one line that sa
 import errno
 import json
 import os
+import signal
 import threading
+import time
 
 import pytest
 import torch
@@ -16,6 +18,7 @@ from va_plugin.engine import trainer as trainer_module
 from va_plugin.engine.metrics_log import training_records
 from va_plugin.engine.trainer import TrainingInterrupted, list_checkpoints, load_checkpoint
 from va_plugin.errors import ConfigError, OutputError
+from va_plugin.utils.interrupts import terminate_as_interrupt
 
 
 def _params(trainer):
@@ -185,6 +188,38 @@ def test_config_json_is_written_whole(tiny_scene, tmp_path):
     trainer.train()
     assert json.loads((tmp_path / "run" / "config.json").read_text())["max_steps"] == 1
     assert _no_temporary_files(tmp_path / "run")
+
+
+@pytest.mark.parametrize("second", ["TERM", "INT"])
+def test_a_second_signal_while_the_checkpoint_is_written_lets_it_finish(second, monkeypatch, tiny_scene, tmp_path):
+    """The second signal lands inside torch.save's write: raised there, it surfaced as torch's RuntimeError
+    (inline_container.cc), a traceback. It waits for the write's end now, and the stop is the first's."""
+    monkeypatch.setenv(trainer_module.SIGNALS_ENV, "2:TERM@end")
+    real, sent = trainer_module._torch_save, []
+
+    class SignalMidWrite:
+        def __init__(self, handle):
+            self.handle = handle
+
+        def write(self, data):
+            if not sent:
+                sent.append(second)
+                os.kill(os.getpid(), getattr(signal, "SIG" + second))
+                time.sleep(0.05)  # the handler runs here
+            return self.handle.write(data)
+
+        def flush(self):
+            self.handle.flush()
+
+    monkeypatch.setattr(trainer_module, "_torch_save", lambda obj, handle: real(obj, SignalMidWrite(handle)))
+    previous = signal.signal(signal.SIGINT, signal.default_int_handler)
+    try:
+        with terminate_as_interrupt(), pytest.raises(TrainingInterrupted) as stopped:
+            tiny_config("neus", tiny_scene, tmp_path / "run", steps=6, checkpoint_every=10).setup().train()
+    finally:
+        signal.signal(signal.SIGINT, previous)
+    assert sent and stopped.value.saved and stopped.value.step == 2 and stopped.value.cause == "SIGTERM"
+    assert load_checkpoint(tmp_path / "run")["step"] == 2 and _no_temporary_files(tmp_path / "run")
 
 
 def test_a_bad_signal_plan_is_refused(monkeypatch, tiny_scene, tmp_path):

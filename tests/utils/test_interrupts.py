@@ -8,7 +8,7 @@ import time
 
 import pytest
 
-from va_plugin.utils.interrupts import interrupt_deferred
+from va_plugin.utils.interrupts import interrupt_deferred, signals_held
 
 
 @pytest.fixture(autouse=True)
@@ -205,3 +205,15 @@ def test_a_worker_whose_main_process_died_is_interrupted_then_ended(tmp_path, ch
         time.sleep(0.05)
     assert not _alive(child)
     assert marker.exists() != child_ignores_sigint
+
+
+def test_signals_held_wait_for_the_block_then_go_to_the_handler_before_it():
+    with pytest.raises(KeyboardInterrupt), signals_held():
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+        reached_the_end = True
+    assert reached_the_end and signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    with signals_held(hand_on=False):  # the caller stops anyway: the signal is dropped
+        os.kill(os.getpid(), signal.SIGINT)
+        time.sleep(0.05)
+    assert signal.getsignal(signal.SIGINT) is signal.default_int_handler

@@ -8,13 +8,14 @@ format, the training views, their masks) and returns the pictures for the page. 
 
 from __future__ import annotations
 
+import os
 import shutil
 import uuid
 import warnings
 import zipfile
 import zlib
 from dataclasses import dataclass, field
-from pathlib import Path
+from pathlib import Path, PureWindowsPath
 
 import numpy as np
 
@@ -22,6 +23,7 @@ from va_plugin.api import QUALITIES, build_config, check_views
 from va_plugin.batch.inputs import find_objects
 from va_plugin.data.dataparsers import FORMATS, detect_format, image_shape
 from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES, image_files
+from va_plugin.data.dataparsers.transforms import referenced_files
 from va_plugin.data.foreground import mask_picture
 from va_plugin.data.images import VIDEO_SUFFIXES, read_video
 from va_plugin.errors import ConfigError, DataError, VAError
@@ -124,6 +126,26 @@ def _one_input(folder: Path) -> bool:
     return any(fmt.detect(folder) for fmt in FORMATS.values())
 
 
+def check_confined(folder: Path, name: str) -> None:
+    """Refuse an unpacked upload whose scene files name a file outside it (an absolute path, a ``~`` or
+    ``..`` that leaves it): the app reads only the upload's own files. Decided on the text of each entry
+    before any file it names is looked at, with one message whatever the entry, so that an upload learns
+    nothing of the server's files."""
+    root = os.path.normpath(os.path.abspath(folder))
+    for json_path, where, entry in referenced_files(folder):
+        text = entry.replace("\\", "/")
+        joined = os.path.normpath(os.path.join(os.fspath(json_path.parent), text))
+        leaves = (text.startswith(("/", "~")) or PureWindowsPath(entry).drive != ""
+                  or os.path.commonpath([root, joined]) != root)
+        if not leaves:
+            target = Path(joined).with_suffix(".png") if not Path(joined).suffix else Path(joined)
+            leaves = not Path(os.path.realpath(target)).is_relative_to(os.path.realpath(root))
+        if leaves:
+            raise DataError(f"{name}: {json_path.relative_to(folder).as_posix()} {where} names a file outside the "
+                            "upload; the app reads only the files inside an upload (use paths relative to the "
+                            "json, without ..)")
+
+
 def _object_in(folder: Path, name: str) -> Path:
     """The one generator output or scene folder below ``folder`` (an unpacked zip)."""
     try:
@@ -166,6 +188,7 @@ def stage_upload(file: str | Path, staging_root: Path, max_bytes: int) -> Upload
         if suffix == ".zip":
             unpacked = staging / (file.stem or "upload")
             _unpack(file, unpacked, max_bytes, name)
+            check_confined(unpacked, name)
             upload.path = _object_in(unpacked, name)
         elif suffix in VIDEO_SUFFIXES:
             shutil.copyfile(file, upload.path)

@@ -9,11 +9,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from va_plugin.api import RECOMMENDED_METHOD
 from va_plugin.app.settings import DEFAULT_RUNS, AppSettings
-from va_plugin.cli.common import check_output_dir, friendly_errors
+from va_plugin.cli.common import check_output_dir, friendly_errors, path_argument
 from va_plugin.errors import VAError
 
 
@@ -28,7 +27,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--host", default="127.0.0.1",
                         help="address to serve on (default 127.0.0.1: this machine only; 0.0.0.0: every interface)")
     parser.add_argument("--port", type=int, default=None, help="port (default: the first free one from 7860)")
-    parser.add_argument("--runs", type=Path, default=DEFAULT_RUNS,
+    parser.add_argument("--runs", type=path_argument, default=str(DEFAULT_RUNS),
                         help=f"folder of the run folders, one fresh folder per run (default {DEFAULT_RUNS})")
     parser.add_argument("--device", default="auto", help="auto, cpu or cuda[:N] (default auto)")
     parser.add_argument("--method", default=RECOMMENDED_METHOD, help="reconstruction method (default neus)")

@@ -10,7 +10,6 @@ import os
 import sys
 import time
 from dataclasses import asdict
-from pathlib import Path
 from typing import Any
 
 from tqdm import tqdm
@@ -27,6 +26,7 @@ from va_plugin.cli.common import (
     add_mesh_file_options,
     add_quiet_option,
     friendly_errors,
+    path_argument,
 )
 from va_plugin.cli.train import add_object_options
 from va_plugin.engine.run_folder import check_writable_folder
@@ -46,10 +46,11 @@ def build_parser() -> argparse.ArgumentParser:
                "thumbnail.png, eval.json and batch.log), OUT/manifest.jsonl, OUT/summary.csv, OUT/summary.md and "
                "OUT/contact_sheet.png. "
                "The options after --no-progress are va-train's and hold for every object.")
-    parser.add_argument("inputs", type=Path, help="a folder of generator outputs and/or scene folders, or a text "
-                        "file listing them (one path a line)")
+    parser.add_argument("inputs", type=path_argument,
+                        help="a folder of generator outputs and/or scene folders, or a text file listing them (one "
+                             "path a line)")
     parser.add_argument("--method", required=True, help="a registered method (va-train --help lists them)")
-    parser.add_argument("--out", type=Path, required=True, help="batch folder")
+    parser.add_argument("--out", type=path_argument, required=True, help="batch folder")
     parser.add_argument("--engine", choices=ENGINES, default="local",
                         help="local: worker processes on this machine (default); ray: one Ray task per object")
     parser.add_argument("--workers", type=int, default=None,

@@ -8,11 +8,13 @@ import functools
 import sys
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 
 from va_plugin.engine.run_folder import check_output_dir
-from va_plugin.errors import VAError, one_line_warning
+from va_plugin.errors import VAError, once_each
 from va_plugin.export.frame import FRAMES
 from va_plugin.utils.interrupts import terminate_as_interrupt
+from va_plugin.utils.paths import user_path
 
 EXIT_USER_ERROR = 2
 EXIT_INTERRUPTED = 130
@@ -26,6 +28,15 @@ class ArgumentParser(argparse.ArgumentParser):
         self.exit(EXIT_USER_ERROR, f"error: {message} (see {self.prog} --help)\n")
 
 
+def path_argument(text: str) -> Path:
+    """A path option's value as every later step uses it: ``~`` expanded, absolute, symbolic links
+    followed (:func:`~va_plugin.utils.paths.user_path`); one that cannot be is argparse's one-line error."""
+    try:
+        return user_path(text, "path")
+    except VAError as exc:
+        raise argparse.ArgumentTypeError(str(exc)) from None
+
+
 def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
     """Turn VAError into ``error: <message>`` on stderr with exit status 2 (no traceback); Ctrl-C, and SIGTERM
     taken like it, into ``interrupted`` and exit status 130 once the command has saved what it can."""
@@ -33,7 +44,7 @@ def friendly_errors(main: Callable[..., int]) -> Callable[..., int]:
     @functools.wraps(main)
     def wrapper(*args, **kwargs) -> int:
         shown = warnings.showwarning
-        warnings.showwarning = one_line_warning
+        warnings.showwarning = once_each()
         try:
             with terminate_as_interrupt():
                 return main(*args, **kwargs)
@@ -70,4 +81,4 @@ def add_mesh_file_options(parser: argparse.ArgumentParser, *names: str) -> None:
 
 
 __all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "ArgumentParser", "add_mesh_file_options", "add_quiet_option",
-           "check_output_dir", "friendly_errors"]
+           "check_output_dir", "friendly_errors", "path_argument"]

@@ -22,7 +22,7 @@ from va_plugin.api import (
     train,
 )
 from va_plugin.bench.scenes import default_scene
-from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, add_quiet_option, friendly_errors
+from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, add_quiet_option, friendly_errors, path_argument
 from va_plugin.data.images import read_image, write_image
 from va_plugin.engine.run_folder import is_run_folder
 from va_plugin.export.render import render_turntable
@@ -35,7 +35,7 @@ def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="va-demo", description=__doc__.splitlines()[0])
     parser.add_argument("--method", default="neus", help="registered method to train (default neus)")
     parser.add_argument("--preset", default=None, help="preset of the method")
-    parser.add_argument("--output-dir", type=Path, default=Path("outputs/demo"), help="run folder")
+    parser.add_argument("--output-dir", type=path_argument, default="outputs/demo", help="run folder")
     parser.add_argument("--steps", type=int, default=None,
                         help="step budget (default: the preset's or the method's own)")
     parser.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")

@@ -5,10 +5,9 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from pathlib import Path
 
 from va_plugin.api import EVAL_FILE, check_evaluate_options, check_scorable, evaluate, load_run, write_json
-from va_plugin.cli.common import ArgumentParser, friendly_errors
+from va_plugin.cli.common import ArgumentParser, friendly_errors, path_argument
 from va_plugin.eval.mesh_render import check_supersample, textured_mesh_metrics
 from va_plugin.export.mesh import extract_mesh
 from va_plugin.export.texture import bake_texture, check_texture_size, run_views
@@ -17,10 +16,10 @@ from va_plugin.export.texture import bake_texture, check_texture_size, run_views
 def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="va-eval", description="Evaluate a trained run (PSNR, SSIM, LPIPS on "
                                      "held-out views; Chamfer distance, volume IoU, F-score of its mesh).")
-    parser.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
-    parser.add_argument("--scene", type=Path, default=None,
+    parser.add_argument("--load-dir", type=path_argument, required=True, help="run folder of va-train")
+    parser.add_argument("--scene", type=path_argument, default=None,
                         help="scene folder with scene.json and the ground-truth mesh (default: the run's data)")
-    parser.add_argument("--output", type=Path, default=None, help="default RUN/eval.json")
+    parser.add_argument("--output", type=path_argument, default=None, help="default RUN/eval.json")
     parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of the run's mesh")
     parser.add_argument("--image-scale", type=float, default=1.0, help="render held-out views at this scale")
     parser.add_argument("--max-views", type=int, default=None, help="evaluate at most this many held-out views")

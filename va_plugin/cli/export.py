@@ -4,11 +4,10 @@ from __future__ import annotations
 
 import argparse
 import sys
-from pathlib import Path
 
 from va_plugin.analysis.diagnostics import write_diagnostics
 from va_plugin.api import export_mesh, load_run, render
-from va_plugin.cli.common import ArgumentParser, add_mesh_file_options, add_quiet_option, friendly_errors
+from va_plugin.cli.common import ArgumentParser, add_mesh_file_options, add_quiet_option, friendly_errors, path_argument
 from va_plugin.errors import ConfigError
 from va_plugin.utils.memory import check_render_size
 
@@ -17,8 +16,8 @@ def build_parser() -> argparse.ArgumentParser:
     parser = ArgumentParser(prog="va-export", description="Export meshes and renders of a trained run.")
     sub = parser.add_subparsers(dest="what", required=True)
     mesh = sub.add_parser("mesh", help="marching-cubes mesh with vertex colors, or textured with --texture")
-    mesh.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
-    mesh.add_argument("--output", type=Path, default=None,
+    mesh.add_argument("--load-dir", type=path_argument, required=True, help="run folder of va-train")
+    mesh.add_argument("--output", type=path_argument, default=None,
                       help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply; with --texture RUN/mesh.glb and "
                            "RUN/mesh.obj with its .mtl and .png)")
     mesh.add_argument("--overwrite", action="store_true", help="replace an existing --output file outside the run")
@@ -38,15 +37,15 @@ def build_parser() -> argparse.ArgumentParser:
     mesh.add_argument("--use-inconsistency", action="store_true",
                       help="view-adaptive runs: weight each view down where its inconsistency map is high")
     render = sub.add_parser("render", help="held-out views and a turntable (PNG frames and MP4)")
-    render.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
-    render.add_argument("--output-dir", type=Path, default=None, help="default RUN/renders")
+    render.add_argument("--load-dir", type=path_argument, required=True, help="run folder of va-train")
+    render.add_argument("--output-dir", type=path_argument, default=None, help="default RUN/renders")
     render.add_argument("--scale", type=float, default=1.0, help="resolution factor of the held-out views")
     render.add_argument("--max-views", type=int, default=None, help="render at most this many held-out views")
     render.add_argument("--frames", type=int, default=24, help="turntable frames")
     render.add_argument("--turntable-resolution", type=int, default=128, help="turntable image size")
     diag = sub.add_parser("diagnostics", help="view-adaptive runs: attention heat map and per-view inconsistency maps")
-    diag.add_argument("--load-dir", type=Path, required=True, help="run folder of va-train")
-    diag.add_argument("--output-dir", type=Path, default=None, help="default RUN")
+    diag.add_argument("--load-dir", type=path_argument, required=True, help="run folder of va-train")
+    diag.add_argument("--output-dir", type=path_argument, default=None, help="default RUN")
     diag.add_argument("--scale", type=float, default=0.5, help="resolution factor of the inconsistency maps")
     for p in (mesh, render, diag):
         p.add_argument("--device", default=None, help="auto, cpu or cuda[:N]")

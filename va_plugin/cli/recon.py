@@ -23,6 +23,7 @@ from va_plugin.cli.common import (
     add_quiet_option,
     check_output_dir,
     friendly_errors,
+    path_argument,
 )
 from va_plugin.cli.train import VIEWS_HELP, add_rig_options, parse_views
 from va_plugin.data.dataparsers import FORMATS
@@ -41,15 +42,15 @@ def build_parser(methods) -> argparse.ArgumentParser:
                f"Methods: {listing}; neus is the recommended one (va-neus is the paper's view-adaptive "
                "variant: slower, and on our benchmarks no more accurate). Step by step: va-train, then "
                "va-export mesh --texture.")
-    parser.add_argument("input", type=Path, help="the generator's output, or a scene folder")
-    parser.add_argument("--out", type=Path, default=None,
+    parser.add_argument("input", type=path_argument, help="the generator's output, or a scene folder")
+    parser.add_argument("--out", type=path_argument, default=None,
                         help="output folder (default: outputs/recon/<input name>)")
     parser.add_argument("--method", default=RECOMMENDED_METHOD, help="reconstruction method (default neus)")
     parser.add_argument("--quality", choices=tuple(QUALITIES), default="default",
                         help="fast: a rough mesh in about a quarter of the time; accurate: the paper's 4x256 "
                              "network for 6000 steps, hours on a CPU, meant for a GPU (default: default)")
     parser.add_argument("--views", type=parse_views, default=None, help=VIEWS_HELP + " (default: all)")
-    parser.add_argument("--masks", type=Path, default=None,
+    parser.add_argument("--masks", type=path_argument, default=None,
                         help="mask folder (one image per view) or one mask image in the input's layout, "
                              "instead of the input's alpha or the color key")
     parser.add_argument("--data-format", default="auto", choices=("auto", *FORMATS),
@@ -96,7 +97,7 @@ def main(argv: list[str] | None = None) -> int:
     methods = discover_methods()
     args = build_parser(methods).parse_args(argv)
     if args.out is None:
-        args.out = Path("outputs") / "recon" / args.input.expanduser().resolve().stem
+        args.out = path_argument(str(Path("outputs") / "recon" / args.input.stem))
     check_output_dir(args.out, "--out")
     try:
         result = reconstruct(args.input, args.out, method=args.method, quality=args.quality,
@@ -111,7 +112,7 @@ def main(argv: list[str] | None = None) -> int:
     except TrainingInterrupted as interrupt:
         print(f"{interrupt}; continue with the same command and --resume", file=sys.stderr)
         return EXIT_INTERRUPTED
-    print("\n".join(summary_lines(result.record, args.out)))
+    print("\n".join(summary_lines(result.record, result.run_dir)))
     return 0
 
 

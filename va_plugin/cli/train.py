@@ -8,7 +8,14 @@ from pathlib import Path
 
 from va_plugin.api import VIEW_COUNTS, TrainingInterrupted, build_config, export_mesh, train
 from va_plugin.bench.scenes import default_scene
-from va_plugin.cli.common import EXIT_INTERRUPTED, ArgumentParser, add_quiet_option, check_output_dir, friendly_errors
+from va_plugin.cli.common import (
+    EXIT_INTERRUPTED,
+    ArgumentParser,
+    add_quiet_option,
+    check_output_dir,
+    friendly_errors,
+    path_argument,
+)
 from va_plugin.config import format_options
 from va_plugin.data.dataparsers import FORMATS
 from va_plugin.engine.metrics_log import training_records
@@ -28,12 +35,12 @@ def build_parser(methods) -> argparse.ArgumentParser:
         epilog="Without --data, the embedded default scene (a procedural object on the SyncDreamer rig) "
                "is generated and used. Defaults are the method's; --help-config lists every --set key.")
     parser.add_argument("method", help="one of the methods listed above")
-    parser.add_argument("--data", type=Path, default=None, help="scene folder or generator output")
+    parser.add_argument("--data", type=path_argument, default=None, help="scene folder or generator output")
     add_object_options(parser)
-    parser.add_argument("--masks", type=Path, default=None,
+    parser.add_argument("--masks", type=path_argument, default=None,
                         help="generator inputs: mask folder (one image per view) or one mask image in the "
                              "input's layout, instead of the color key")
-    parser.add_argument("--output-dir", type=Path, default=None, help="run folder (default outputs/METHOD)")
+    parser.add_argument("--output-dir", type=path_argument, default=None, help="run folder (default outputs/METHOD)")
     parser.add_argument("--resume", action="store_true", help="continue from the run folder's newest checkpoint")
     parser.add_argument("--overwrite", action="store_true",
                         help="write into the run folder even when it holds other files (an earlier run there "

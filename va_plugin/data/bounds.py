@@ -95,10 +95,15 @@ def same_pose_groups(outputs: DataparserOutputs) -> list[list[int]]:
 
 def check_distinct_views(outputs: DataparserOutputs) -> list[list[int]]:
     """Raise :class:`DataError` when every training view (two or more) has the same camera pose: one
-    viewpoint holds no depth. Warn when some do (a duplicate adds no viewpoint; often a copy-paste error in
-    the poses). Returns the groups of views that share a pose."""
+    viewpoint holds no depth. Warn when there is only one view, and when some share a pose (a duplicate
+    adds no viewpoint; often a copy-paste error in the poses). Returns the groups of views that share a
+    pose."""
     groups = same_pose_groups(outputs)
     count = len(outputs.cameras)
+    if count == 1:
+        warnings.warn("only one training view: a single viewpoint gives no depth, so the shape away from what "
+                      "that view sees (its depth, its back) is a guess; give a multi-view input (a generator's "
+                      "views, or frames from several poses)", stacklevel=2)
     if groups and len(groups[0]) == count:
         raise DataError(f"all {count} training views have the same camera pose, so they see the object from one "
                         "viewpoint and give no depth; check the poses (transform_matrix of each frame)")

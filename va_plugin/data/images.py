@@ -32,10 +32,25 @@ def native_stderr_silenced() -> Iterator[None]:
         os.close(devnull)
 
 
-def decode_image(raw: np.ndarray, flags: int = cv2.IMREAD_UNCHANGED) -> np.ndarray | None:
-    """``cv2.imdecode`` of the bytes of a file, None for a corrupt, truncated or non-image file, quietly."""
+EXIF_ORIENTED = cv2.IMREAD_ANYCOLOR | cv2.IMREAD_ANYDEPTH
+"""OpenCV's flags that keep gray, color and 16 bits as in the file and turn the image as its EXIF
+orientation says (``IMREAD_UNCHANGED`` keeps alpha but ignores the orientation)."""
+
+
+def has_exif(raw: np.ndarray) -> bool:
+    """Whether the bytes of a file are a JPEG with an EXIF block (where a camera or a phone records that
+    the picture is to be shown turned; JPEG has no alpha to lose)."""
+    return raw[:2].tobytes() == b"\xff\xd8" and b"Exif\x00\x00" in raw[:65536].tobytes()
+
+
+def decode_image(raw: np.ndarray, flags: int | None = None) -> np.ndarray | None:
+    """``cv2.imdecode`` of the bytes of a file, None for a corrupt, truncated or non-image file, quietly.
+    By default every channel is kept (``IMREAD_UNCHANGED``), and a JPEG with EXIF is turned upright as
+    its orientation tag says."""
     if raw.size == 0:
         return None
+    if flags is None:
+        flags = EXIF_ORIENTED if has_exif(raw) else cv2.IMREAD_UNCHANGED
     with native_stderr_silenced():
         return cv2.imdecode(raw, flags)
 
@@ -47,8 +62,8 @@ def undecodable(path: Path) -> DataError:
 
 
 def read_image(path: Path) -> np.ndarray:
-    """An 8- or 16-bit image file as float32 ``[H, W, C]`` in [0, 1], C = 3 (RGB) or 4 (RGBA);
-    :class:`DataError` for a missing, truncated or non-image file."""
+    """An 8- or 16-bit image file as float32 ``[H, W, C]`` in [0, 1], C = 3 (RGB) or 4 (RGBA), turned as
+    its EXIF orientation says; :class:`DataError` for a missing, truncated or non-image file."""
     path = Path(path)
     if not path.is_file():
         raise DataError(f"image not found: {path}")

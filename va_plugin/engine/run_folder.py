@@ -311,8 +311,9 @@ def claim_run_folder(config: TrainerConfig, *, resume: bool = False, overwrite: 
                      preset: str | None = None, command: str = "train", flag: str = "--out") -> Iterator[bool]:
     """Check and lock ``config.output_dir`` for training, write its manifest first, and yield whether
     the run continues from a checkpoint. Refuses (nothing written): a folder this command may not write
-    (:func:`check_writable_folder`), a run there without ``resume`` (or ``overwrite``), ``resume`` of a
-    folder with nothing to resume, and ``resume`` with another method, preset, input or option."""
+    (:func:`check_writable_folder`), a run there without ``resume`` (or ``overwrite``), a run there on
+    another input (without ``overwrite``, checkpoints or not), ``resume`` of a folder with nothing to
+    resume, and ``resume`` with another method, preset, input or option."""
     folder = Path(config.output_dir).expanduser()
     check_writable_folder(folder, flag=flag, inputs=data_paths(config), overwrite=overwrite)
     current = make_manifest(config, preset, command)
@@ -321,6 +322,11 @@ def claim_run_folder(config: TrainerConfig, *, resume: bool = False, overwrite: 
     with folder_lock(folder), _removed_on_error(folder if fresh else None, existed):
         manifest = read_manifest(folder) if not (overwrite and not resume) else None
         continues = has_checkpoints(folder)
+        other_input = manifest is not None and manifest.get("data_sha256") != current["data_sha256"]
+        if other_input and not overwrite and not (resume and continues):  # a resume: check_same_run says it
+            was = ", ".join(manifest.get("data", [])) or "other data"
+            raise RunFolderError(f"{folder} holds a run on {was}, not on {', '.join(current['data'])} (their files "
+                                 f"differ); pass --overwrite to replace that run, or choose another {flag}")
         if resume and not continues:
             if manifest is None and _foreign_entry(folder) is None:
                 warnings.warn(f"--resume: {folder} holds no run yet; starting a new one", stacklevel=3)

@@ -31,7 +31,7 @@ from va_plugin.fields.encodings.hash_kernel import denormals_flushed
 from va_plugin.pipelines.base import PipelineConfig
 from va_plugin.utils.device import pick_device
 from va_plugin.utils.files import DISK_FULL, NOT_WRITABLE, output_error, replace_atomic, write_atomic
-from va_plugin.utils.interrupts import signal_plan, signals_as_requests
+from va_plugin.utils.interrupts import signal_plan, signals_as_requests, signals_held
 from va_plugin.utils.memory import keep_freed_memory
 from va_plugin.utils.progress import progress_bar
 from va_plugin.utils.stages import stage, timed
@@ -376,13 +376,14 @@ class Trainer:
         path = self.run_dir / CHECKPOINT_DIR / f"step-{self.step:07d}.ckpt"
         keep = max(1, self.config.keep_checkpoints)
         state = self.state_dict()
-        try:
-            try:
-                atomic_save(state, path)
-            except OSError as exc:
-                if exc.errno not in DISK_FULL or not self._drop_old_checkpoints(max(1, keep - 1), but=path):
-                    raise
-                atomic_save(state, path)
+        try:  # a signal during the write waits for its end; once the run is stopping, a second one is moot
+            with signals_held(hand_on=self._signalled is None):
+                try:
+                    atomic_save(state, path)
+                except OSError as exc:
+                    if exc.errno not in DISK_FULL or not self._drop_old_checkpoints(max(1, keep - 1), but=path):
+                        raise
+                    atomic_save(state, path)
         except OSError as exc:
             raise self._write_error(exc, path) from None
         self._saved_step = self.step

@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import json
 import time
+import warnings
 from pathlib import Path
 from typing import Any
 
@@ -13,8 +14,8 @@ import trimesh
 
 from va_plugin.errors import DataError
 from va_plugin.eval.geometry import geometry_metrics
-from va_plugin.eval.image import psnr, ssim
-from va_plugin.eval.lpips import LPIPSWeightsMissing, lpips, weight_paths
+from va_plugin.eval.image import SSIM_WINDOW, psnr, ssim
+from va_plugin.eval.lpips import MIN_SIDE, LPIPSWeightsMissing, lpips, weight_paths
 from va_plugin.export.mesh import extract_mesh
 from va_plugin.export.render import held_out_views, write_pair
 
@@ -51,7 +52,8 @@ def image_metrics(pipeline, image_scale: float = 1.0, max_views: int | None = No
                   progress: bool = True, render_dir: Path | None = None, render_fn=None) -> dict[str, Any]:
     """Mean PSNR, SSIM and LPIPS over the held-out views, rendered on the canonical path (or by
     ``render_fn(cameras, index)``, see :func:`held_out_views`); with ``render_dir`` each view is also
-    written there as ``view_XXX.png`` (render | ground truth)."""
+    written there as ``view_XXX.png`` (render | ground truth). Views too small for SSIM (11 px) or LPIPS
+    (31 px) are scored without them, with a warning."""
     test = pipeline.datamanager.test
     if test is None:
         return {}
@@ -61,13 +63,19 @@ def image_metrics(pipeline, image_scale: float = 1.0, max_views: int | None = No
     size = None
     for i, render, target in held_out_views(pipeline, image_scale, max_views, progress, desc="evaluating views",
                                               render_fn=render_fn):
+        side = min(render.shape[:2])
         scores["psnr"].append(psnr(render, target))
-        scores["ssim"].append(ssim(render, target))
-        if use_lpips:
+        if side >= SSIM_WINDOW:
+            scores["ssim"].append(ssim(render, target))
+        if use_lpips and side >= MIN_SIDE:
             scores["lpips"].append(lpips(render, target))
         if render_dir is not None:
             write_pair(render_dir, i, render, target)
         size = render.shape[:2]
+    if size is not None and min(size) < MIN_SIDE and (use_lpips or min(size) < SSIM_WINDOW):
+        warnings.warn(f"held-out views of {size[1]}x{size[0]} px are too small for "
+                      f"{'SSIM and LPIPS' if min(size) < SSIM_WINDOW else 'LPIPS'} (at least {SSIM_WINDOW} and "
+                      f"{MIN_SIDE} px); scored without them", stacklevel=2)
     out: dict[str, Any] = {k: float(np.mean(v)) for k, v in scores.items() if v}
     out["image_params"] = {"views": len(scores["psnr"]), "width": None if size is None else int(size[1]),
                            "height": None if size is None else int(size[0]), "background": list(test.background)}

@@ -13,10 +13,12 @@ DEVICE_TYPES = ("cpu", "cuda")
 def pick_device(override: str | None = None) -> torch.device:
     """The device to run on: ``override`` if given ("cpu", "cuda", "cuda:1"), else CUDA when present. An
     override that names no device of this machine (another kind, a CUDA index it lacks) is refused."""
-    if override in (None, "", "auto"):
-        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
-    if not isinstance(override, (str, torch.device)):
+    if not isinstance(override, (str, torch.device, type(None))):
         raise ConfigError(f"unknown device {override!r}; use auto, cpu or cuda[:N]")
+    if isinstance(override, str) and not override.strip():
+        raise ConfigError("--device is empty; use auto, cpu or cuda[:N]")
+    if override in (None, "auto"):
+        return torch.device("cuda" if torch.cuda.is_available() else "cpu")
     try:
         device = torch.device(override.strip() if isinstance(override, str) else override)
     except RuntimeError:

@@ -6,7 +6,8 @@ Some imports (trimesh, open3d) catch a KeyboardInterrupt and carry on broken; in
 :func:`terminate_as_interrupt` SIGTERM (``kill``, batch time limits) raises KeyboardInterrupt, so it
 takes Ctrl-C's way out (a checkpoint is saved, workers are interrupted and waited for). Inside
 :func:`signals_as_requests` (the training loop) the first SIGINT or SIGTERM only asks the loop to stop
-when the step ends; :func:`signal_plan` reads the test hook that sends them at chosen steps. A worker
+when the step ends, and :func:`signals_held` keeps them from cutting a checkpoint's write short;
+:func:`signal_plan` reads the test hook that sends them at chosen steps. A worker
 process calls :func:`interrupt_when_orphaned` so that its main process's death stops it as Ctrl-C would.
 """
 
@@ -18,6 +19,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from typing import Any
 
 
 @contextlib.contextmanager
@@ -61,6 +63,14 @@ def terminate_as_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, signal.SIG_DFL)
 
 
+def _takeable_signals() -> dict[int, Any]:
+    """SIGINT and SIGTERM with their dispositions, where a block may take them over: a Python handler, or
+    SIGTERM's default (an ignored signal, or SIGINT left to the system, stays as it is)."""
+    current = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
+    return {signum: handler for signum, handler in current.items()
+            if callable(handler) or (signum == signal.SIGTERM and handler is signal.SIG_DFL)}
+
+
 @contextlib.contextmanager
 def signals_as_requests(request: Callable[[int], None]) -> Iterator[None]:
     """Run the block with SIGINT and SIGTERM calling ``request(signum)`` instead of interrupting it, so the
@@ -73,9 +83,8 @@ def signals_as_requests(request: Callable[[int], None]) -> Iterator[None]:
     if threading.current_thread() is not threading.main_thread():
         yield
         return
-    previous = {signum: signal.getsignal(signum) for signum in (signal.SIGINT, signal.SIGTERM)}
-    taken = [signum for signum, handler in previous.items()
-             if callable(handler) or (signum == signal.SIGTERM and handler is signal.SIG_DFL)]
+    previous = _takeable_signals()
+    taken = list(previous)
     received: list[int] = []
 
     def handler(signum, frame) -> None:
@@ -93,6 +102,33 @@ def signals_as_requests(request: Callable[[int], None]) -> Iterator[None]:
         for signum in taken:
             if signal.getsignal(signum) is handler:  # not when the handler handed on changed it meanwhile
                 signal.signal(signum, previous[signum])
+
+
+@contextlib.contextmanager
+def signals_held(hand_on: bool = True) -> Iterator[None]:
+    """Run the block (a checkpoint being written) with SIGINT and SIGTERM only noted, so that no signal
+    cuts it short: an exception raised inside ``torch.save`` would surface as torch's own error, a
+    traceback. Once the block is done, a signal that came meanwhile is handed to the handler in place
+    before the block (``hand_on``), or dropped when the caller stops anyway (a second Ctrl-C while the
+    checkpoint of the first is written).
+
+    Signals ignored or left to the system (SIGINT without Python's handler) are left alone; does nothing
+    off the main thread."""
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    previous = _takeable_signals()
+    held = list(previous)
+    received: list[int] = []
+    for signum in held:
+        signal.signal(signum, lambda signum, frame: received.append(signum))
+    try:
+        yield
+    finally:
+        for signum in held:
+            signal.signal(signum, previous[signum])
+    if hand_on and received:
+        _hand_on(received[0], None, previous[received[0]])
 
 
 def _hand_on(signum: int, frame, handler) -> None:

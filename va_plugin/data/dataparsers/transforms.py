@@ -12,6 +12,7 @@ from __future__ import annotations
 
 import json
 import math
+from collections.abc import Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -55,6 +56,29 @@ def find_split_file(root: Path, split: str) -> Path | None:
     if split == "train":
         raise DataError(f"{root} holds neither transforms_train.json nor transforms.json")
     return None
+
+
+def referenced_files(folder: Path) -> Iterator[tuple[Path, str, str]]:
+    """Every file named inside the scene files under ``folder``: (the json, where in it, the entry as
+    written) for each frame's ``file_path`` of each ``transforms*.json`` and the ``mesh`` of each
+    ``scene.json``. A json that cannot be read is skipped (the parser says what is wrong with it)."""
+    for json_path in sorted(Path(folder).rglob("*.json")):
+        if not (json_path.name.startswith("transforms") or json_path.name == "scene.json"):
+            continue
+        try:
+            meta = json.loads(json_path.read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            continue
+        if not isinstance(meta, dict):
+            continue
+        if json_path.name == "scene.json":
+            if isinstance(meta.get("mesh"), str):
+                yield json_path, "mesh", meta["mesh"]
+            continue
+        frames = meta.get("frames")
+        for k, frame in enumerate(frames if isinstance(frames, list) else []):
+            if isinstance(frame, dict) and "file_path" in frame:
+                yield json_path, f"frame {k}", str(frame["file_path"])
 
 
 def _resolve_image(json_dir: Path, file_path: str) -> Path:
