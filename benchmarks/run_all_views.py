@@ -60,6 +60,9 @@ def start_worker(parent: int) -> None:
     from va_plugin.utils.interrupts import interrupt_when_orphaned
 
     MAIN_PROCESS = parent
+    # a main process started in the background (``cmd &``) hands its workers SIGINT ignored, and then the
+    # SIGINT it forwards on SIGTERM (and the orphan watch's) would not stop their rows at a checkpoint
+    signal.signal(signal.SIGINT, signal.default_int_handler)
     interrupt_when_orphaned(parent)
 
 

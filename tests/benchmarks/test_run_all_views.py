@@ -51,3 +51,15 @@ def test_a_variant_is_paired_with_the_default_at_its_own_view_count(allviews):
     text = allviews.table(rows, [(4, ""), (16, ""), (16, "half")])
     assert "16 views against 4 views, paired over 1 objects: CD x0.500" in text
     assert "16 views half against 16 views, paired over 1 objects: CD x1.100" in text
+
+
+def test_a_worker_takes_sigint_even_when_its_main_process_runs_in_the_background(allviews):
+    import os
+    import signal
+
+    previous = signal.signal(signal.SIGINT, signal.SIG_IGN)  # what `cmd &` hands a spawned worker
+    try:
+        allviews.start_worker(os.getppid())  # the watch stays asleep: this process's parent lives on
+        assert signal.getsignal(signal.SIGINT) is signal.default_int_handler
+    finally:
+        signal.signal(signal.SIGINT, previous)
