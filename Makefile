@@ -30,4 +30,4 @@ nerfstudio: .venv-ns/.va-ns-setup-done
 
 # ns-train and the export on a tiny scene, for each method registered in nerfstudio
 test-nerfstudio: nerfstudio
-	.venv-ns/bin/python -m pytest -q tests/nerfstudio
+	.venv-ns/bin/python -m pytest -q tests/nerfstudio_plugin
