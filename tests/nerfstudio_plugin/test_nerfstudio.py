@@ -136,3 +136,14 @@ def test_first_steps_losses_match_our_trainer(method, strip, tmp_path):
     for step, (g, e) in enumerate(zip(got, expected, strict=True)):
         for key in e:
             assert g[key] == pytest.approx(e[key], rel=1e-5, abs=1e-7), (step, key, g[key], e[key])
+
+
+def test_missing_input_is_one_error_line(tmp_path):
+    """A bad input stops ns-train with our one-line error and exit status 2, not a traceback."""
+    ns_train = Path(sys.executable).parent / "ns-train"
+    command = [str(ns_train), "va-plugin-neus", "--output-dir", str(tmp_path), "--vis", "tensorboard",
+               "--machine.device-type", "cpu", "va-generator", "--data", str(tmp_path / "missing.png")]
+    result = subprocess.run(command, capture_output=True, text=True, timeout=600)
+    assert result.returncode == 2, result.stderr[-2000:]
+    assert "Traceback" not in result.stderr
+    assert result.stderr.strip().splitlines()[-1] == f"error: data not found: {tmp_path / 'missing.png'}"

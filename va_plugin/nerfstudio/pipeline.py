@@ -10,6 +10,7 @@ checkpoint the run folder gets one in our format (``checkpoints/step-N.ckpt``), 
 from __future__ import annotations
 
 import contextlib
+import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -22,10 +23,12 @@ from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttrib
 from nerfstudio.pipelines.base_pipeline import Pipeline
 from nerfstudio.utils.rich_utils import CONSOLE
 
+from va_plugin.cli.common import EXIT_USER_ERROR
 from va_plugin.config import to_dict
 from va_plugin.engine.metrics_log import append_record
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.engine.trainer import CHECKPOINT_DIR, TrainerConfig, atomic_save, list_checkpoints
+from va_plugin.errors import VAError
 from va_plugin.fields.encodings.hash_kernel import denormals_flushed
 from va_plugin.nerfstudio.datamanager import VAGeneratorDataManagerConfig
 from va_plugin.nerfstudio.model import VAModelConfig
@@ -68,7 +71,17 @@ class VAPipeline(Pipeline):
                  world_size: int = 1, local_rank: int = 0, grad_scaler: Any = None, **kwargs: Any) -> None:
         super().__init__()
         self.config, self.test_mode, self.world_size, self.local_rank = config, test_mode, world_size, local_rank
-        device = torch.device(device)
+        try:
+            self._build(torch.device(device), grad_scaler)
+        except VAError as exc:  # bad input or options: one line and exit status 2, as our commands do
+            print(f"error: {exc}", file=sys.stderr)
+            raise SystemExit(EXIT_USER_ERROR) from None
+        self._flush = contextlib.ExitStack()
+        self._method = "va"
+        self._run_dir: Path | None = None
+
+    def _build(self, device: torch.device, grad_scaler: Any) -> None:
+        config, test_mode, world_size, local_rank = self.config, self.test_mode, self.world_size, self.local_rank
         self.schedule_steps = config.resolved_schedule_steps()
         self.datamanager = config.datamanager.setup(device=device, test_mode=test_mode, world_size=world_size,
                                                     local_rank=local_rank)
@@ -80,9 +93,6 @@ class VAPipeline(Pipeline):
                                          num_train_data=va.datamanager.num_train_views, metadata={},
                                          device=device, grad_scaler=grad_scaler, va_model=va.model)
         self._model.to(device)
-        self._flush = contextlib.ExitStack()
-        self._method = "va"
-        self._run_dir: Path | None = None
 
     # -- training -------------------------------------------------------------------------------
     def get_train_loss_dict(self, step: int):
