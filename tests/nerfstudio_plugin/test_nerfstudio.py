@@ -147,3 +147,37 @@ def test_missing_input_is_one_error_line(tmp_path):
     assert result.returncode == 2, result.stderr[-2000:]
     assert "Traceback" not in result.stderr
     assert result.stderr.strip().splitlines()[-1] == f"error: data not found: {tmp_path / 'missing.png'}"
+
+
+@pytest.mark.parametrize("method", ["neus", "va-ngp"])
+def test_field_answers_nerfstudio_samples(method, strip, tmp_path):
+    """Our field behind nerfstudio's Field gives, at nerfstudio's samples, what our model reads there."""
+    from nerfstudio.cameras.rays import RayBundle as NSRayBundle
+    from nerfstudio.field_components.field_heads import FieldHeadNames
+    from nerfstudio.model_components.ray_samplers import UniformSampler
+
+    from va_plugin.data.dataparsers import resolve_dataparser
+    from va_plugin.nerfstudio.field import VAField
+
+    config = tiny_config(method, strip, tmp_path)
+    config.pipeline.datamanager.dataparser = resolve_dataparser(strip)
+    pipeline = config.pipeline.setup(device=torch.device("cpu"), schedule_steps=2)
+    rays, _ = pipeline.datamanager.next_train(0)
+    n = len(rays)
+    bundle = NSRayBundle(origins=rays.origins, directions=rays.directions, pixel_area=torch.ones(n, 1),
+                         camera_indices=rays.camera_indices[:, None], nears=torch.full((n, 1), 0.5),
+                         fars=torch.full((n, 1), 2.0))
+    samples = UniformSampler(num_samples=4)(bundle)
+    field = VAField(pipeline.model.field)
+    outputs = field(samples)
+    positions = samples.frustums.get_positions().reshape(-1, 3)
+    assert outputs[FieldHeadNames.RGB].shape == (n, 4, 3)
+    assert ((outputs[FieldHeadNames.RGB] >= 0) & (outputs[FieldHeadNames.RGB] <= 1)).all()
+    if pipeline.model.field.geometry_kind == "sdf":
+        expected = pipeline.model.mesh_field(positions)
+        assert torch.allclose(outputs[FieldHeadNames.SDF].reshape(-1), expected, atol=1e-6)
+        assert torch.allclose(outputs[FieldHeadNames.NORMALS].norm(dim=-1), torch.ones(n, 4), atol=1e-4)
+    else:
+        expected = pipeline.model.density(positions)
+        assert torch.allclose(outputs[FieldHeadNames.DENSITY].reshape(-1), expected, rtol=1e-5)
+    assert list(field.parameters()) == []  # held, not registered: the weights stay saved once, under the model

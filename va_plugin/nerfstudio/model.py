@@ -3,6 +3,7 @@
 The pipeline builds our model (so that the random initialisation draws what ``va-train``'s does) and hands
 it in as ``va_model``; this class forwards nerfstudio's calls to it, renders the viewer's cameras with it,
 and turns its training callbacks (the view-adaptive phases, the step schedules) into nerfstudio's.
+``field`` is its field behind nerfstudio's ``Field``.
 """
 
 from __future__ import annotations
@@ -20,6 +21,7 @@ from va_plugin.engine.callbacks import AFTER_STEP
 from va_plugin.engine.callbacks import TrainingCallbackAttributes as VAAttributes
 from va_plugin.models.base import ModelConfig as VAModelConfigBase
 from va_plugin.models.neus import NeuSModelConfig
+from va_plugin.nerfstudio.field import VAField
 from va_plugin.rays import RayBundle
 
 NOVEL_VIEW = -1  # the camera index of rays from a camera that is no training view (the viewer's)
@@ -45,6 +47,7 @@ class VAModel(Model):
 
     def populate_modules(self) -> None:
         self.va_model = self.kwargs["va_model"]
+        object.__setattr__(self, "field", VAField(self.va_model.field))  # the same weights, reached once
         self.lr_factors: dict[str, float] = {}
         """Learning-rate factors by optimizer group, as our callbacks last asked (the pipeline applies them)."""
 
