@@ -154,3 +154,14 @@ def test_field_answers_nerfstudio_samples(method, strip, tmp_path):
         expected = pipeline.model.density(positions)
         assert torch.allclose(outputs[FieldHeadNames.DENSITY].reshape(-1), expected, rtol=1e-5)
     assert list(field.parameters()) == []  # held, not registered: the weights stay saved once, under the model
+
+
+def test_import_va_plugin_leaves_nerfstudio_alone():
+    """Only nerfstudio's entry points import the plugin: our package and its API never import nerfstudio (nor
+    torchvision: the environment's start-up hook only stands a stub in for one of its modules)."""
+    code = ("import sys, va_plugin, va_plugin.api, va_plugin.cli.export, va_plugin.registry\n"
+            "va_plugin.registry.discover_methods()\n"
+            "print(sorted(m for m in sys.modules if m.split('.')[0] == 'nerfstudio' or m == 'torchvision'))")
+    result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
+    assert result.returncode == 0, result.stderr[-2000:]
+    assert result.stdout.strip() == "[]"
