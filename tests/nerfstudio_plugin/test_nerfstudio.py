@@ -165,3 +165,20 @@ def test_import_va_plugin_leaves_nerfstudio_alone():
     result = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=300)
     assert result.returncode == 0, result.stderr[-2000:]
     assert result.stdout.strip() == "[]"
+
+
+def test_dataparser_gives_nerfstudio_the_same_rays_and_view_files(strip, tmp_path):
+    """For nerfstudio's own methods: the views as RGBA files, and cameras whose rays are ours."""
+    from va_plugin.nerfstudio.dataparser import VAGeneratorDataParserConfig
+
+    parser = VAGeneratorDataParserConfig(data=strip, cache_dir=tmp_path / "cache").setup()
+    outputs = parser.get_dataparser_outputs("train")
+    ours = parser.va_outputs("train")
+    assert len(outputs.image_filenames) == len(ours) == 16 and all(p.is_file() for p in outputs.image_filenames)
+    assert parser.get_dataparser_outputs("train").image_filenames == outputs.image_filenames  # written once
+    for view in (0, 5):
+        theirs = outputs.cameras.generate_rays(camera_indices=view, keep_shape=True)
+        origins, directions = ours.cameras.generate_rays(view, *ours.cameras.pixel_grid(view)[1:])
+        assert torch.allclose(theirs.origins.reshape(-1, 3), origins, atol=1e-5)
+        assert torch.allclose(torch.nn.functional.normalize(theirs.directions.reshape(-1, 3), dim=-1), directions,
+                              atol=1e-5)
