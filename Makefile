@@ -1,5 +1,5 @@
 # The commands of the README. Each runs the setup first (it is quick once done).
-.PHONY: setup demo test lint app browser-check
+.PHONY: setup demo test lint app browser-check nerfstudio test-nerfstudio
 
 .venv/.va-setup-done: setup.py scripts/setup.sh
 	bash scripts/setup.sh
@@ -21,3 +21,13 @@ lint: setup
 
 test: lint
 	.venv/bin/python -m pytest -q
+
+# nerfstudio 1.1.5 with the CPU build of torch in its own environment, .venv-ns/ (ns-train va-neus, ...)
+.venv-ns/.va-ns-setup-done: setup.py scripts/setup_nerfstudio.sh scripts/nerfstudio_requirements.py
+	bash scripts/setup_nerfstudio.sh
+
+nerfstudio: .venv-ns/.va-ns-setup-done
+
+# ns-train and the export on a tiny scene, for each method registered in nerfstudio
+test-nerfstudio: nerfstudio
+	.venv-ns/bin/python -m pytest -q tests/nerfstudio_plugin

@@ -52,5 +52,12 @@ setup(
         "va_plugin.methods": METHODS,
         # multi-view generator formats of other packages: a DataFormat, a rig dict or a rig file's path
         "va_plugin.formats": [],
+        # nerfstudio's trainer (ns-train) lists these when nerfstudio is installed: make nerfstudio
+        "nerfstudio.method_configs": [
+            "va-neus = va_plugin.nerfstudio.methods:va_neus",
+            "va-ngp = va_plugin.nerfstudio.methods:va_ngp",
+            "va-plugin-neus = va_plugin.nerfstudio.methods:va_plugin_neus",
+        ],
+        "nerfstudio.dataparser_configs": ["va-generator = va_plugin.nerfstudio.dataparser:va_generator"],
     },
 )

@@ -8,7 +8,7 @@ import torch
 from torch import nn
 
 from va_plugin.config import InstantiateConfig
-from va_plugin.data.datamanager import DataManagerConfig
+from va_plugin.data.datamanager import DataManager, DataManagerConfig
 from va_plugin.model_components.losses import psnr_from_mse
 from va_plugin.models.base import ModelConfig, SceneInfo
 from va_plugin.models.neus import NeuSModelConfig
@@ -27,11 +27,14 @@ class PipelineConfig(InstantiateConfig):
 
 
 class Pipeline(nn.Module):
-    def __init__(self, config: PipelineConfig, device: torch.device, schedule_steps: int) -> None:
+    def __init__(self, config: PipelineConfig, device: torch.device, schedule_steps: int,
+                 datamanager: DataManager | None = None) -> None:
+        """``datamanager``: one already built from ``config.datamanager`` (a host framework's data manager
+        holds it); by default it is built here."""
         super().__init__()
         self.config = config
         self.device = device
-        self.datamanager = config.datamanager.setup(device=device)
+        self.datamanager = config.datamanager.setup(device=device) if datamanager is None else datamanager
         scene = SceneInfo(num_train_views=self.datamanager.num_train_views,
                           scene_radius=self.datamanager.scene_radius,
                           background=self.datamanager.background, schedule_steps=schedule_steps,
