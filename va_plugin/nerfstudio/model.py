@@ -17,8 +17,8 @@ from nerfstudio.cameras.cameras import Cameras as NSCameras
 from nerfstudio.engine.callbacks import TrainingCallback, TrainingCallbackAttributes, TrainingCallbackLocation
 from nerfstudio.models.base_model import Model, ModelConfig
 
-from va_plugin.engine.callbacks import AFTER_STEP
-from va_plugin.engine.callbacks import TrainingCallbackAttributes as VAAttributes
+from va_plugin.callbacks import AFTER_STEP
+from va_plugin.callbacks import TrainingCallbackAttributes as VAAttributes
 from va_plugin.models.base import ModelConfig as VAModelConfigBase
 from va_plugin.models.neus import NeuSModelConfig
 from va_plugin.nerfstudio.field import VAField
