@@ -46,11 +46,12 @@ class VAGeneratorDataManagerConfig(DataManagerConfig):
     _target: type = field(default_factory=lambda: VAGeneratorDataManager)
     dataparser: AnnotatedDataParserUnion = field(default_factory=VAGeneratorDataParserConfig)
     """How to read the input (the va methods read it with va-generator)."""
-    rays_per_batch: int = 512
+    # our DataManagerConfig's defaults, so that both trainers draw the same rays unless told otherwise
+    rays_per_batch: int = VADataManagerConfig.rays_per_batch
     """Training rays per step."""
-    foreground_fraction: float = 0.5
+    foreground_fraction: float = VADataManagerConfig.foreground_fraction
     """Share of each batch drawn from foreground pixels (the rest uniformly from all pixels)."""
-    seed: int = 42
+    seed: int = VADataManagerConfig.seed
     """Seed of the ray sampler's own generator (independent of the model's)."""
 
 
