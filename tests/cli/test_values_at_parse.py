@@ -87,7 +87,8 @@ def test_a_wonder3d_folder_missing_a_view_names_it(tmp_path, capsys):
     assert detect_format(folder) == "wonder3d"
     run = tmp_path / "run"
     code = train_cli.main(["neus", "--data", str(folder), "--output-dir", str(run), *TINY])
-    one_line_error(capsys, code, f"{folder} is missing the Wonder3D view(s) back; expected a folder with rgb_000")
+    one_line_error(capsys, code, f"{folder} is missing the wonder3d view file(s) rgb_000_back.png; expected a "
+                                 "folder with rgb_000")
     assert not run.exists()
 
 

@@ -221,13 +221,14 @@ def test_bad_layouts_name_the_expected_one(tmp_path, syncdreamer_strip, renderer
         detect_format(odd)
     message = str(info.value)
     assert "70x50 image" in message and all(name in message for name in FORMATS) and "4096 wide" in message
-    with pytest.raises(DataError, match="expected one image of 16 square views side by side"):
+    with pytest.raises(DataError, match="expected syncdreamer: one image of 16 square views of 256 px"):
         parse(odd, "syncdreamer")
-    with pytest.raises(DataError, match="expected one image of 3 rows x 2 columns"):
+    with pytest.raises(DataError, match="expected zero123pp: one image of 3 rows x 2 columns"):
         parse(syncdreamer_strip[0], "zero123pp")
     partial = tmp_path / "w3d"
     write_wonder3d(partial, renderer, normals=False, skip=("back", "left"))
-    with pytest.raises(DataError, match=r"missing the Wonder3D view\(s\) back, left; expected a folder with rgb_000"):
+    with pytest.raises(DataError, match=r"missing the wonder3d view file\(s\) rgb_000_back.png, rgb_000_left.png; "
+                                        "expected a folder with rgb_000_<view>.png"):
         parse(partial, "wonder3d")
 
 
@@ -267,7 +268,7 @@ def test_masks_must_match_the_views(syncdreamer_strip, tmp_path):
 
 
 @pytest.mark.parametrize("extra, message", [
-    (["--data-format", "zero123pp"], "expected one image of 3 rows x 2 columns"),
+    (["--data-format", "zero123pp"], "expected zero123pp: one image of 3 rows x 2 columns"),
     (["--rig", "v1.1"], "--rig applies to zero123pp inputs only"),
 ])
 def test_cli_bad_generator_input_is_one_line(extra, message, syncdreamer_strip, tmp_path, capsys):

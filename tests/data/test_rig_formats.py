@@ -84,7 +84,7 @@ def test_builtin_rigs_hold_the_values_of_the_generators_code():
     assert crm.elevations == (0, -90, 0, 0, 90, 0) and crm.azimuths[0] == 270 and crm.background == (0.5,) * 3
     mva = rig["mvadapter"]
     assert mva.azimuths == (0, 45, 90, 180, 270, 315) and mva.ortho_scale == pytest.approx(1.1)
-    assert rig["era3d"].files == "color_{view}_masked.png" and rig["era3d"].normals == "normals_{view}_masked.png"
+    assert rig["era3d"].files == ("color_{view}_masked.png",) and rig["era3d"].normals == "normals_{view}_masked.png"
     assert all(spec.source for spec in rig.values())  # every built-in rig cites where its values come from
 
 

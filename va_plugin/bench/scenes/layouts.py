@@ -14,7 +14,7 @@ import cv2
 import numpy as np
 
 from va_plugin.data.images import write_image
-from va_plugin.data.rigfile import UP_SIDES, RigSpec
+from va_plugin.data.rigfile import UP_SIDES, RigSpec, shown_name
 from va_plugin.errors import DataError
 
 
@@ -71,11 +71,11 @@ def write_layout(path: Path, spec: RigSpec, rgba: np.ndarray, normals: np.ndarra
         write_video(path, views[..., :3])
     else:
         path.mkdir(parents=True, exist_ok=True)
-        names = [spec.files.format(view=v) for v in spec.view_names] if spec.files else \
+        names = [shown_name(spec.files[-1], v) for v in spec.view_names] if spec.files else \
             [f"{k:03d}.png" for k in range(spec.count)]
         for name, view in zip(names, views):
             write_image(path / name, view)
         if spec.normals and normals is not None:
             for view_name, normal in zip(spec.view_names, as_written(normals, spec)):
-                write_image(path / spec.normals.format(view=view_name), normal)
+                write_image(path / shown_name(spec.normals, view_name), normal)
     return path

@@ -1,7 +1,7 @@
 """Dataparsers by format name, with detection of the format from the input.
 
-Formats are the built-in parsers (``transforms``, ``syncdreamer``, ``zero123pp``, ``wonder3d``), one per
-built-in rig file (:mod:`va_plugin.data.rigfile`), ``rig`` (a user's rig file, ``--rig FILE``), and those
+Formats are ``transforms``, one per built-in rig file (:mod:`va_plugin.data.rigfile`; ``syncdreamer``,
+``zero123pp`` and ``wonder3d`` with their own options), ``rig`` (a user's rig file, ``--rig FILE``), and those
 other packages register under the ``va_plugin.formats`` entry-point group: a :class:`DataFormat`, a rig
 file's content (a dict) or the path of a rig file::
 
@@ -23,22 +23,16 @@ from pathlib import Path
 import numpy as np
 
 from va_plugin.data.dataparsers.base import DataParserConfig
-from va_plugin.data.dataparsers.generators import (
-    IMAGE_SUFFIXES,
-    SYNCDREAMER_LAYOUT,
-    WONDER3D_LAYOUT,
-    ZERO123PP_LAYOUT,
+from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES, image_files
+from va_plugin.data.dataparsers.rigged import (
+    RigDataParserConfig,
     SyncDreamerDataParserConfig,
     Wonder3DDataParserConfig,
     Zero123ppDataParserConfig,
-    image_files,
-    wonder3d_file,
 )
-from va_plugin.data.dataparsers.rigged import RigDataParserConfig
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
 from va_plugin.data.images import VIDEO_SUFFIXES, decode_image, undecodable
-from va_plugin.data.rigfile import RigSpec, builtin_rigs, read_rig_file, rig_from_dict
-from va_plugin.data.rigs import RIG_VIEWS, WONDER3D_VIEWS
+from va_plugin.data.rigfile import RigSpec, builtin_rigs, find_file, read_rig_file, rig_from_dict
 from va_plugin.errors import ConfigError, DataError
 
 FORMAT_ENTRY_POINTS = "va_plugin.formats"
@@ -68,34 +62,17 @@ def _is_transforms(path: Path) -> bool:
     return path.is_file() and path.suffix == ".json"
 
 
-def _is_strip(path: Path) -> bool:
-    shape = image_shape(path)
-    return shape is not None and shape[1] == RIG_VIEWS * shape[0]
-
-
-def _is_grid(path: Path) -> bool:
-    shape = image_shape(path)
-    return shape is not None and shape[0] * 2 == shape[1] * 3 and shape[1] % 2 == 0
-
-
-def _is_wonder3d(path: Path) -> bool:
-    """A folder with Wonder3D's ``rgb_000_<view>`` files (any of them: the parser names the missing views)."""
-    if not path.is_dir():
-        return False
-    views = [v for v, _ in WONDER3D_VIEWS]
-    return any(any(wonder3d_file(folder, "rgb", v) for v in views) for folder in (path, path / "masked_colors"))
-
-
 def _name_score(spec: RigSpec, path: Path) -> int:
     """1 when the file name is one the generator writes, 0 otherwise."""
     return int(any(fnmatch.fnmatch(path.name.lower(), pattern.lower()) for pattern in spec.names))
 
 
 def _size_score(spec: RigSpec, tile: int) -> int:
-    """2 when the views have the generator's own size, 1 when the rig fixes no size, 0 otherwise."""
+    """2 when the views have the generator's own size, 1 when the rig fixes no size or detects any size,
+    0 otherwise."""
     if not spec.tile_sizes:
         return 1
-    return 2 if tile in spec.tile_sizes else 0
+    return 2 if tile in spec.tile_sizes else int(spec.any_size)
 
 
 def _image_tile(spec: RigSpec, shape: tuple) -> int | None:
@@ -128,14 +105,14 @@ def rig_score(spec: RigSpec, path: Path) -> int:
         return score + named
     if not path.is_dir():
         return 0
-    if spec.files:
-        present = [v for v in spec.view_names if (path / spec.files.format(view=v)).is_file()]
-        return 3 if present else 0  # the parser names any missing view
+    if spec.files:  # one view's file is enough: the parser names the missing ones
+        return int(any(find_file(path, pattern, view) for pattern in spec.files for view in spec.view_names))
     return 1 if len(image_files(path)) == spec.count else 0
 
 
-def _rig_format(spec: RigSpec, rig: str) -> DataFormat:
-    return DataFormat(lambda: RigDataParserConfig(rig=rig), lambda path: rig_score(spec, path), spec.layout_text())
+def _rig_format(spec: RigSpec, rig: str, make_config: Callable[[], DataParserConfig] | None = None) -> DataFormat:
+    return DataFormat(make_config or (lambda: RigDataParserConfig(rig=rig)), lambda path: rig_score(spec, path),
+                      spec.layout_text())
 
 
 def _plugin_format(name: str, value) -> DataFormat:
@@ -165,13 +142,15 @@ def plugin_formats() -> dict[str, DataFormat]:
 
 COMMON_OPTIONS = ("background", "scene_radius", "image_scale")  # carried over from a method's dataparser
 RIG_FILE_FORMAT = "rig"
+OWN_CONFIGS: dict[str, Callable[[], DataParserConfig]] = {
+    "syncdreamer": SyncDreamerDataParserConfig, "zero123pp": Zero123ppDataParserConfig,
+    "wonder3d": Wonder3DDataParserConfig}
+"""Built-in rigs read with their own options (``--views``, ``--elevation``; ``--rig`` v1.1 or v1.2; ...)."""
 FORMATS: dict[str, DataFormat] = {
     "transforms": DataFormat(TransformsDataParserConfig, _is_transforms,
                              "a folder with transforms.json (or transforms_train.json), or that json file"),
-    "syncdreamer": DataFormat(SyncDreamerDataParserConfig, _is_strip, SYNCDREAMER_LAYOUT),
-    "zero123pp": DataFormat(Zero123ppDataParserConfig, _is_grid, ZERO123PP_LAYOUT),
-    "wonder3d": DataFormat(Wonder3DDataParserConfig, _is_wonder3d, WONDER3D_LAYOUT),
-    **{name: _rig_format(spec, name) for name, spec in builtin_rigs().items()},
+    **{name: _rig_format(builtin_rigs()[name], name, make) for name, make in OWN_CONFIGS.items()},
+    **{name: _rig_format(spec, name) for name, spec in builtin_rigs().items() if name not in OWN_CONFIGS},
     RIG_FILE_FORMAT: DataFormat(RigDataParserConfig, lambda path: False, "any layout, as a rig file (--rig FILE) says"),
 }
 FORMATS.update({name: fmt for name, fmt in plugin_formats().items() if name not in FORMATS})

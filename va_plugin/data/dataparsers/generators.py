@@ -1,10 +1,11 @@
-"""Dataparsers for the raw outputs of multi-view generators: SyncDreamer, Zero123++ and Wonder3D.
+"""What every generator-output dataparser shares: masks, the silhouette check and normalisation.
 
-Each reads the generator's file layout, gives its views the generator's fixed cameras
-(:mod:`va_plugin.data.rigs`), finds a mask per view (the user's masks, else alpha, else a color key:
-:mod:`va_plugin.data.foreground`) and composites the views on the background. With ``normalize =
-"silhouettes"`` the cameras are moved and scaled so the masks' visual hull fills the unit box; the hull's
-per-view silhouette IoU is kept in the metadata as a check of the rig.
+The one reader (:class:`~va_plugin.data.dataparsers.rigged.RigDataParser`) reads a generator's file
+layout and gives its views the cameras of its rig file (:mod:`va_plugin.data.rigfile`); this base finds a
+mask per view (the user's masks, else alpha, else a color key: :mod:`va_plugin.data.foreground`) and
+composites the views on the background. With ``normalize = "silhouettes"`` the cameras are moved and
+scaled so the masks' visual hull fills the unit box; the hull's per-view silhouette IoU is kept in the
+metadata as a check of the rig.
 """
 
 from __future__ import annotations
@@ -20,22 +21,15 @@ import numpy as np
 import torch
 
 from va_plugin.cameras import Cameras
-from va_plugin.data import rigs
 from va_plugin.data.dataparsers.base import DataParser, DataParserConfig, DataparserOutputs, rescale_views
 from va_plugin.data.foreground import ColorKey, check_masks, color_key_mask, composite, mask_from_image
 from va_plugin.data.images import read_image, split_alpha
+from va_plugin.data.rigfile import IMAGE_SUFFIXES
 from va_plugin.data.visual_hull import normalise_cameras, unit_box_transform, visual_hull
 from va_plugin.errors import ConfigError, DataError
 
-IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".webp", ".bmp")
 NORMALIZE_MODES = ("rig", "silhouettes")
-NORMAL_FRAMES = ("front", "view")
 LOW_SILHOUETTE_IOU = 0.8  # below this (mean, or any one view) the rig does not explain the views
-
-SYNCDREAMER_LAYOUT = "one image of 16 square views side by side in azimuth order, 256 high x 4096 wide"
-ZERO123PP_LAYOUT = "one image of 3 rows x 2 columns of square views in row-major order, 640 wide x 960 high"
-WONDER3D_LAYOUT = ("a folder with rgb_000_<view>.png for the views " + ", ".join(v for v, _ in rigs.WONDER3D_VIEWS)
-                   + " (optionally normals_000_<view>.png and masked_colors/rgb_000_<view>.png)")
 
 
 def image_files(folder: Path) -> list[Path]:
@@ -245,154 +239,9 @@ class GeneratorDataParser(DataParser):
             background=tuple(self.config.background), image_paths=[views.paths[i] for i in ids], metadata=metadata)
 
 
-class SingleImageDataParser(GeneratorDataParser):
-    """Generators that write every view into one image (a strip or a grid)."""
-
-    def read_tiles(self):
-        path = Path(self.config.data)
-        if not path.is_file():
-            raise DataError(f"a {self.format_name} input is {self.layout}; {path} is not a file")
-        tiles = self.split_image(read_image(path), str(path))
-        return tiles, [f"{path.name} view {k}" for k in range(len(tiles))], [path] * len(tiles)
-
-
 def opaque(tile: np.ndarray) -> bool:
     """Whether an RGBA tile's alpha is 1 everywhere (an image saved with alpha that carries no mask)."""
     return tile.shape[2] == 4 and float(tile[:, :, 3].min()) >= 1.0 - 0.5 / 255
-
-
-# -- SyncDreamer ------------------------------------------------------------------------------------
-@dataclass
-class SyncDreamerDataParserConfig(GeneratorDataParserConfig):
-    """A SyncDreamer output: one strip of 16 views on its 30-degree orbit."""
-
-    _target: type = field(default_factory=lambda: SyncDreamerDataParser)
-    num_views: int = 16
-    """Training views, uniform in azimuth from view 0 (4, 8, 12 or 16: all); the others are held out."""
-    elevation_deg: float = rigs.RIG_ELEVATION_DEG
-    """Elevation of the 16 cameras (SyncDreamer generates at 30 degrees)."""
-    pixel_offset: float = 0.5
-    """Where pixels are sampled: 0.5 matches the Blender renders SyncDreamer was trained on."""
-
-    def validate(self, prefix: str = "") -> None:
-        """The elevation (``--elevation``) strictly between -90 and 90 degrees."""
-        super().validate(prefix)
-        rigs.check_elevation(self.elevation_deg, f"option {prefix}elevation_deg (--elevation)")
-        rigs.input_view_ids(self.num_views)
-
-
-class SyncDreamerDataParser(SingleImageDataParser):
-    config: SyncDreamerDataParserConfig
-    format_name = "syncdreamer"
-    layout = SYNCDREAMER_LAYOUT
-
-    def split_image(self, image: np.ndarray, where: str) -> list[np.ndarray]:
-        return split_strip(image, rigs.RIG_VIEWS, where, self.layout)
-
-    def rig(self, tile_size: int) -> Cameras:
-        return rigs.syncdreamer_rig(tile_size, self.config.elevation_deg, self.config.pixel_offset)
-
-    def train_ids(self, count: int) -> list[int]:
-        return rigs.input_view_ids(self.config.num_views)
-
-
-# -- Zero123++ --------------------------------------------------------------------------------------
-@dataclass
-class Zero123ppDataParserConfig(GeneratorDataParserConfig):
-    """A Zero123++ output: a 3 x 2 grid of six views around the input view."""
-
-    _target: type = field(default_factory=lambda: Zero123ppDataParser)
-    rig: str = "v1.2"
-    """Model version, which fixes elevations and field of view: v1.1 or v1.2."""
-    normalize: str = "silhouettes"
-    """Zero123++ leaves the camera radius (hence the object's size) free: fit it from the masks."""
-
-    def validate(self, prefix: str = "") -> None:
-        """A known rig (``--rig``)."""
-        super().validate(prefix)
-        if self.rig not in rigs.ZERO123PP_RIGS:
-            raise ConfigError(f"unknown Zero123++ rig {self.rig!r} (--rig); known: {', '.join(rigs.ZERO123PP_RIGS)}")
-
-
-class Zero123ppDataParser(SingleImageDataParser):
-    config: Zero123ppDataParserConfig
-    format_name = "zero123pp"
-    layout = ZERO123PP_LAYOUT
-
-    def split_image(self, image: np.ndarray, where: str) -> list[np.ndarray]:
-        return split_grid(image, 3, 2, where, self.layout)
-
-    def rig(self, tile_size: int) -> Cameras:
-        return rigs.zero123pp_rig(self.config.rig, tile_size)
-
-
-# -- Wonder3D ---------------------------------------------------------------------------------------
-@dataclass
-class Wonder3DDataParserConfig(GeneratorDataParserConfig):
-    """A Wonder3D output folder: six orthographic views (RGB, and normal maps when present)."""
-
-    _target: type = field(default_factory=lambda: Wonder3DDataParser)
-    ortho_scale: float = rigs.WONDER3D_ORTHO_SCALE
-    """World units across an image (Wonder3D rendered with 1.35)."""
-    normal_frame: str = "front"
-    """Camera frame of the normal maps: "front" (what Wonder3D's own reconstruction assumes) or "view"."""
-    normalize: str = "silhouettes"
-    """Fit the masks' visual hull into the unit box."""
-
-    def validate(self, prefix: str = "") -> None:
-        """A known ``normal_frame``."""
-        super().validate(prefix)
-        if self.normal_frame not in NORMAL_FRAMES:
-            raise ConfigError(f"{prefix}normal_frame must be front or view, got {self.normal_frame!r}")
-
-
-def wonder3d_file(folder: Path, prefix: str, view: str) -> Path | None:
-    """``<prefix>_<index>_<view>.<ext>`` (or ``<prefix>_<view>``) in ``folder``, or None."""
-    if not folder.is_dir():
-        return None
-    pattern = re.compile(rf"^{prefix}(_\d+)?_{view}$")
-    found = [p for p in image_files(folder) if pattern.match(p.stem)]
-    return found[0] if found else None
-
-
-class Wonder3DDataParser(GeneratorDataParser):
-    config: Wonder3DDataParserConfig
-    format_name = "wonder3d"
-    layout = WONDER3D_LAYOUT
-
-    def view_names(self) -> Sequence[str]:
-        return [view for view, _ in rigs.WONDER3D_VIEWS]
-
-    def read_tiles(self):
-        folder = Path(self.config.data)
-        if not folder.is_dir():
-            raise DataError(f"a Wonder3D input is {self.layout}; {folder} is not a folder")
-        masked = [wonder3d_file(folder / "masked_colors", "rgb", v) for v in self.view_names()]
-        plain = [wonder3d_file(folder, "rgb", v) for v in self.view_names()]
-        paths = masked if all(masked) else plain
-        missing = [v for v, p in zip(self.view_names(), paths) if p is None]
-        if missing:
-            raise DataError(f"{folder} is missing the Wonder3D view(s) {', '.join(missing)}; expected {self.layout}")
-        tiles = [read_image(p) for p in paths]
-        size = tiles[0].shape[0]
-        for tile, path in zip(tiles, paths):
-            if tile.shape[:2] != (size, size):
-                raise DataError(f"{path} is {tile.shape[1]}x{tile.shape[0]}; Wonder3D views are square and "
-                                f"all the size of {paths[0].name} ({size}x{size})")
-        return tiles, [str(p) for p in paths], paths
-
-    def rig(self, tile_size: int) -> Cameras:
-        return rigs.wonder3d_rig(tile_size, self.config.ortho_scale)
-
-    def extra_metadata(self, cameras: Cameras, masks: np.ndarray) -> dict[str, Any]:
-        """World-space normal maps ``[6, H, W, 3]`` (zero outside their alpha) when the folder has them."""
-        if self.config.normal_frame not in NORMAL_FRAMES:
-            raise ConfigError(f"normal_frame must be front or view, got {self.config.normal_frame!r}")
-        folder = Path(self.config.data)
-        paths = [wonder3d_file(folder, "normals", v) for v in self.view_names()]
-        if not all(paths):
-            return {}
-        return read_normal_maps(paths, cameras, masks, self.config.normal_frame)
 
 
 def read_normal_maps(paths: Sequence[Path], cameras: Cameras, masks: np.ndarray, normal_frame: str,
