@@ -16,8 +16,22 @@ from va_plugin.bench.scenes.layouts import assemble, write_layout, write_video
 from va_plugin.cli import recon as recon_cli
 from va_plugin.data import dataparsers, rigs
 from va_plugin.data.dataparsers import DataFormat, detect_format, plugin_formats, resolve_dataparser
+from va_plugin.data.dataparsers.rigged import (
+    SyncDreamerDataParserConfig,
+    Wonder3DDataParserConfig,
+    Zero123ppDataParserConfig,
+)
 from va_plugin.data.images import write_image
-from va_plugin.data.rigfile import builtin_rigs, orbit_c2w, read_rig_file, rig_cameras, rig_from_dict
+from va_plugin.data.rigfile import (
+    builtin_rigs,
+    find_file,
+    orbit_c2w,
+    read_rig_file,
+    rig_cameras,
+    rig_from_dict,
+    shown_name,
+    view_files,
+)
 from va_plugin.errors import ConfigError, DataError
 from va_plugin.raycast import MeshRenderer, position_albedo
 
@@ -86,6 +100,43 @@ def test_builtin_rigs_hold_the_values_of_the_generators_code():
     assert mva.azimuths == (0, 45, 90, 180, 270, 315) and mva.ortho_scale == pytest.approx(1.1)
     assert rig["era3d"].files == ("color_{view}_masked.png",) and rig["era3d"].normals == "normals_{view}_masked.png"
     assert all(spec.source for spec in rig.values())  # every built-in rig cites where its values come from
+
+
+def test_the_first_generators_rig_files_give_their_rigs_bit_for_bit():
+    """SyncDreamer, Zero123++ and Wonder3D read through rig files must keep the cameras their own parsers
+    gave (:mod:`va_plugin.data.rigs`), to the bit: runs on their inputs must not change."""
+    def same(a, b):
+        return all(torch.equal(getattr(a, k), getattr(b, k)) for k in ("c2w", "fx", "fy", "cx", "cy")) and \
+            (a.camera_type, a.pixel_offset, a.width) == (b.camera_type, b.pixel_offset, b.width)
+
+    for tile in (32, 256, 300):
+        for elevation, offset in ((30.0, 0.5), (12.25, 0.0), (-45.5, 0.5)):
+            spec = SyncDreamerDataParserConfig(elevation_deg=elevation, pixel_offset=offset).spec()
+            assert same(rig_cameras(spec, tile), rigs.syncdreamer_rig(tile, elevation, offset))
+        for version in ("v1.1", "v1.2"):
+            spec = Zero123ppDataParserConfig(rig=version).spec()
+            assert same(rig_cameras(spec, tile), rigs.zero123pp_rig(version, tile))
+        spec = Wonder3DDataParserConfig(ortho_scale=1.2).spec()
+        assert same(rig_cameras(spec, tile), rigs.wonder3d_rig(tile, 1.2))
+    assert float(rig_cameras(builtin_rigs()["syncdreamer"], 256).fx[0]) == 280.0
+
+
+def test_folder_patterns_match_index_and_any_extension_and_prefer_the_first_complete(tmp_path):
+    spec = rig_from_dict({"layout": {"type": "folder", "files": ["sub/rgb_{index}_{view}", "rgb_{index}_{view}"]},
+                          "views": {"names": ["right", "front_right"], "azimuths": [90, 45], "elevation": 0},
+                          "camera": {"type": "orthographic", "scale": 1}})
+    for name in ("rgb_000_front_right.png", "rgb_right.JPG", "rgb_x_right.png", "notes_right.txt"):
+        (tmp_path / name).write_bytes(b"")
+    assert find_file(tmp_path, "rgb_{index}_{view}", "right").name == "rgb_right.JPG"
+    assert find_file(tmp_path, "rgb_{index}_{view}", "front_right").name == "rgb_000_front_right.png"
+    assert find_file(tmp_path, "rgb_{index}_{view}.png", "right") is None
+    (tmp_path / "sub").mkdir()
+    (tmp_path / "sub" / "rgb_001_right.png").write_bytes(b"")
+    assert view_files(spec, tmp_path)[0] == "rgb_{index}_{view}"  # sub/ lacks front_right
+    (tmp_path / "sub" / "rgb_001_front_right.webp").write_bytes(b"")
+    pattern, files = view_files(spec, tmp_path)
+    assert pattern.startswith("sub/") and [f.name for f in files] == ["rgb_001_right.png", "rgb_001_front_right.webp"]
+    assert shown_name("sub/rgb_{index}_{view}", "back") == "sub/rgb_000_back.png"
 
 
 # -- each reader on data it did not write -----------------------------------------------------------
@@ -306,6 +357,12 @@ def test_grid_of_the_wrong_size_is_one_line(tmp_path, capsys):
       "camera": {"type": "orthographic", "scale": 1}}, "has both 'elevation' and 'elevations'"),
     ({"layout": {"type": "strip", "count": 2}, "views": {"azimuths": [0, 90], "elevation": 0},
       "camera": {"type": "perspective", "fov_deg": 190}}, "the field of view must be a number between 0 and 170"),
+    ({"layout": {"type": "strip", "count": 2}, "views": {"azimuths": [0, 90], "elevation": 0},
+      "camera": {"type": "perspective", "fov_deg": 40, "focal": 1.2}}, "gives both 'fov_deg' and 'focal'"),
+    ({"layout": {"type": "strip", "count": 2}, "views": {"azimuths": [0, 90], "elevation": 0},
+      "camera": {"type": "perspective", "focal": 1.2, "pixel_offset": 2}}, "pixel_offset must be from 0 to 1"),
+    ({"layout": {"type": "strip", "count": 2, "any_size": True}, "views": {"azimuths": [0, 90], "elevation": 0},
+      "camera": {"type": "orthographic", "scale": 1}}, "true needs layout.tile_sizes"),
 ])
 def test_bad_rig_files_are_one_line(rig, message, renderer, tmp_path, capsys):
     with pytest.raises(DataError, match=message.replace("(", r"\(")):
