@@ -47,3 +47,17 @@ def _option_names(config):
         value = getattr(config, item.name)
         if is_dataclass(value):
             yield from _option_names(value)
+
+
+def test_a_config_of_an_old_generator_parser_unpickles_as_its_rig_file_config():
+    from va_plugin.data.dataparsers.rigged import RigDataParser, SyncDreamerDataParserConfig
+
+    data = pickle.dumps(SyncDreamerDataParserConfig(elevation_deg=20.0), protocol=0)
+    old = data.replace(b"va_plugin.data.dataparsers.rigged\nRigDataParser",
+                       b"va_plugin.data.dataparsers.generators\nSyncDreamerDataParser")
+    old = old.replace(b"va_plugin.data.dataparsers.rigged\nSyncDreamer",
+                      b"va_plugin.data.dataparsers.generators\nSyncDreamer")
+    assert old != data and b"rigged" not in old  # the stream names only the classes of the earlier version
+    loaded = _Unpickler(io.BytesIO(old)).load()
+    assert isinstance(loaded, SyncDreamerDataParserConfig) and loaded._target is RigDataParser
+    assert loaded.elevation_deg == 20.0

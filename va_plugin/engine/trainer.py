@@ -189,12 +189,20 @@ class RemovedOption:
         pass
 
 
+_RIGGED_GENERATORS = ("SyncDreamer", "Zero123pp", "Wonder3D")
+"""Generators whose hand-written parsers became rig files: their runs' configs load under the new classes."""
+
+
 class _Unpickler(pickle.Unpickler):
     """Unpickles checkpoints of earlier versions: a renamed class is found under its new name, a va_plugin
     class that is gone becomes :class:`RemovedOption`."""
 
     RENAMED: ClassVar[dict[tuple[str, str], tuple[str, str]]] = {
-        ("va_plugin.data.foreground", "ColourKey"): ("va_plugin.data.foreground", "ColorKey")}
+        ("va_plugin.data.foreground", "ColourKey"): ("va_plugin.data.foreground", "ColorKey"),
+        **{("va_plugin.data.dataparsers.generators", f"{name}DataParserConfig"):
+           ("va_plugin.data.dataparsers.rigged", f"{name}DataParserConfig") for name in _RIGGED_GENERATORS},
+        **{("va_plugin.data.dataparsers.generators", f"{name}DataParser"):
+           ("va_plugin.data.dataparsers.rigged", "RigDataParser") for name in _RIGGED_GENERATORS}}
     """(module, class) of an earlier version -> where that class is now."""
 
     def find_class(self, module: str, name: str) -> Any:
