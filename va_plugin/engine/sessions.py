@@ -89,9 +89,9 @@ def resolve_config_paths(config: TrainerConfig) -> None:
     expanded, in place: every step of the run then reads and writes the same places."""
     config.output_dir = user_path(config.output_dir, "output_dir")
     parser = config.pipeline.datamanager.dataparser
-    for name in ("data", "masks"):
-        if getattr(parser, name, None) is not None:
-            setattr(parser, name, user_path(getattr(parser, name), name))
+    for name, path in parser.input_paths().items():
+        if path is not None:
+            setattr(parser, name, user_path(path, name))
 
 
 class InterruptedAfterTraining(TrainingInterrupted):
