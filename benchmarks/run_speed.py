@@ -51,11 +51,11 @@ from torch import nn
 from va_plugin.adaptive.attention import ViewAttention
 from va_plugin.api import build_config
 from va_plugin.bench.catalog import SceneSpec, ensure_scene
+from va_plugin.bench.experiment import duration
 from va_plugin.bench.presets import BACKBONES, EvalSettings, get_preset
 from va_plugin.bench.report import fmt, machine_info, markdown_table, plot_stacked_bars, plot_time_curves, write_json
 from va_plugin.bench.rows import ADAPTIVE_OVERRIDES, checkpoint_along, evaluate_checkpoints
 from va_plugin.bench.scenes import cache_dir, default_scene
-from va_plugin.cli.bench import duration
 from va_plugin.cli.common import friendly_errors
 from va_plugin.config import apply_override
 from va_plugin.engine.metrics_log import training_records

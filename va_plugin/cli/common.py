@@ -16,11 +16,10 @@ from va_plugin.export.atlas import MAX_TEXTURE_FACES
 from va_plugin.export.config import ExportConfig
 from va_plugin.export.frame import FRAMES
 from va_plugin.export.fusion import FUSIONS
-from va_plugin.utils.interrupts import terminate_as_interrupt
+from va_plugin.utils.interrupts import EXIT_INTERRUPTED, terminate_as_interrupt
 from va_plugin.utils.paths import user_path
 
 EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
 
 
 class ArgumentParser(argparse.ArgumentParser):
