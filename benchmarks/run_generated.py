@@ -35,6 +35,7 @@ from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 from va_plugin.analysis.consistency import residual_spread_db
+from va_plugin.bench.store import ROWS_FILE, append_row, keyed_rows
 from va_plugin.engine.metrics_log import read_records
 
 REPO = Path(__file__).resolve().parents[1]
@@ -248,12 +249,8 @@ def main(argv=None) -> int:
         inputs = [(n, p) for n, p in inputs if n in wanted]
     methods = args.methods.split(",")
     (args.out / "runs").mkdir(parents=True, exist_ok=True)
-    rows_path = args.out / "rows.jsonl"
-    done = {}
-    if rows_path.is_file():
-        for line in rows_path.read_text().splitlines():
-            row = json.loads(line)
-            done[(row["input"], row["method"])] = row
+    rows_path = args.out / ROWS_FILE
+    done = keyed_rows(rows_path, lambda row: (row["input"], row["method"]))
 
     def tag_of(method: str) -> str:
         tag = f"{method}-forced" if args.force_adaptive and method.startswith("va-") else method
@@ -277,8 +274,7 @@ def main(argv=None) -> int:
             row["inconsistency"] = inc
             shutil.copy(run_dir / "inconsistency.png", args.out / f"{name}-{tag}_inconsistency.png")
         done[key] = row
-        with open(rows_path, "a") as f:
-            f.write(json.dumps(row) + "\n")
+        append_row(rows_path, row)
         print(f"    done in {seconds:.0f} s: train PSNR {row.get('train_psnr', float('nan')):.2f}, "
               f"adaptive: {row.get('adaptive_phases', '-')}", flush=True)
 

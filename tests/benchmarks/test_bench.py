@@ -256,3 +256,16 @@ def test_result_store_skips_a_line_cut_short_by_a_crash(tmp_path):
     records, skipped = read_json_lines(rows)
     assert [r["key"] for r in records] == ["a", "b"] and skipped == 1  # the blank line is not counted
     assert sorted(ResultStore(tmp_path, resume=True).rows) == ["a", "b"]
+
+
+def test_a_scripts_row_file_resumes_by_its_key(tmp_path):
+    """The JSON-lines files the one-off scripts append to: a later row replaces an earlier one with its key,
+    NaN is written as null, and a missing file is no rows."""
+    from va_plugin.bench.store import append_row, keyed_rows
+
+    rows = tmp_path / "out" / "rows.jsonl"
+    assert keyed_rows(rows, lambda row: row["run"]) == {}
+    for row in ({"run": "a", "lpips": 0.1}, {"run": "b", "lpips": float("nan")}, {"run": "a", "lpips": 0.2}):
+        append_row(rows, row)
+    assert keyed_rows(rows, lambda row: row["run"]) == {"a": {"run": "a", "lpips": 0.2},
+                                                        "b": {"run": "b", "lpips": None}}
