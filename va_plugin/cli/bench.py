@@ -10,12 +10,10 @@ import shlex
 import sys
 from pathlib import Path
 
+from va_plugin.bench.catalog import DEFAULT_GSO_ROOT
 from va_plugin.bench.experiment import Experiment, run_experiment
 from va_plugin.bench.presets import BACKBONES, PRESETS
 from va_plugin.cli.common import ArgumentParser, friendly_errors
-
-REPO = Path(__file__).resolve().parents[2]
-DEFAULT_GSO_ROOT = REPO.parent / "shared" / "data" / "gso"
 
 
 def build_parser(experiment: Experiment) -> argparse.ArgumentParser:
