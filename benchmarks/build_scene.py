@@ -20,13 +20,11 @@ import json
 import sys
 from pathlib import Path
 
+from va_plugin.bench.catalog import DEFAULT_GSO_ROOT
 from va_plugin.bench.scenes import build_scene, gso, inputs_figure, list_objects
 from va_plugin.bench.scenes.inconsistency import KINDS, parse_level
 from va_plugin.cli.common import friendly_errors
 from va_plugin.errors import ConfigError, DataError
-
-REPO = Path(__file__).resolve().parents[1]
-DEFAULT_GSO_ROOT = REPO.parent / "shared" / "data" / "gso"
 
 
 def build_parser() -> argparse.ArgumentParser:

@@ -18,6 +18,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from va_plugin.bench.experiment import Experiment, adaptive_overrides, backbones_from_args
 from va_plugin.bench.presets import BACKBONE_TITLES
 from va_plugin.bench.report import (
     DELTA_TITLES,
@@ -31,7 +32,6 @@ from va_plugin.bench.report import (
     write_outputs,
 )
 from va_plugin.bench.rows import RowSpec, scene_of
-from va_plugin.cli.bench import Experiment, adaptive_overrides, backbones_from_args
 from va_plugin.cli.bench import main as bench_main
 
 FIELD = "pipeline.model.field."

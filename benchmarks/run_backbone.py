@@ -24,6 +24,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from va_plugin.bench.experiment import Experiment, axis_values, comma_list
 from va_plugin.bench.presets import BACKBONES
 from va_plugin.bench.report import (
     fmt,
@@ -36,7 +37,6 @@ from va_plugin.bench.report import (
 )
 from va_plugin.bench.rows import RowSpec, scene_of
 from va_plugin.bench.scenes.inconsistency import parse_kinds
-from va_plugin.cli.bench import Experiment, axis_values, comma_list
 from va_plugin.cli.bench import main as bench_main
 from va_plugin.errors import ConfigError
 from va_plugin.registry import get_method

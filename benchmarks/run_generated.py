@@ -35,21 +35,12 @@ from contextlib import redirect_stderr, redirect_stdout
 from pathlib import Path
 
 from va_plugin.analysis.consistency import residual_spread_db
+from va_plugin.bench.catalog import DEFAULT_GENERATED_ROOT, generator_outputs
+from va_plugin.bench.store import ROWS_FILE, append_row, keyed_rows
+from va_plugin.cli.common import friendly_errors
 from va_plugin.engine.metrics_log import read_records
 
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_ROOT = REPO.parent / "shared" / "data" / "generated"
-
-
-def find_inputs(root: Path):
-    """``(name, path)`` of every generator output below ``root``, sorted: PNG files and Wonder3D folders."""
-    if not root.is_dir():
-        raise SystemExit(f"error: no generator outputs at {root} (pass --data-root)")
-    found = []
-    for sub in sorted(p for p in root.iterdir() if p.is_dir()):
-        found.extend((item.stem, item) for item in sorted(sub.iterdir())
-                     if item.suffix.lower() == ".png" or item.is_dir())
-    return found
 
 
 def last_metrics(run_dir: Path) -> dict:
@@ -216,9 +207,10 @@ def write_tables(rows, out: Path) -> None:
     (out / "generated.md").write_text("\n".join(lines) + "\n")
 
 
+@friendly_errors
 def main(argv=None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data-root", type=Path, default=DEFAULT_ROOT)
+    parser.add_argument("--data-root", type=Path, default=DEFAULT_GENERATED_ROOT)
     parser.add_argument("--out", type=Path, default=REPO / "outputs" / "generated")
     parser.add_argument("--methods", default="neus,va-neus")
     parser.add_argument("--inputs", default="", help="comma-separated input names (default: all)")
@@ -239,7 +231,7 @@ def main(argv=None) -> int:
     if args.label and not args.label.replace("-", "").replace("_", "").isalnum():
         parser.error(f"--label must be letters, digits, '-' or '_', got {args.label!r}")
 
-    inputs = find_inputs(args.data_root)
+    inputs = generator_outputs(args.data_root)
     if args.inputs:
         wanted = set(args.inputs.split(","))
         unknown = wanted - {name for name, _ in inputs}
@@ -248,12 +240,8 @@ def main(argv=None) -> int:
         inputs = [(n, p) for n, p in inputs if n in wanted]
     methods = args.methods.split(",")
     (args.out / "runs").mkdir(parents=True, exist_ok=True)
-    rows_path = args.out / "rows.jsonl"
-    done = {}
-    if rows_path.is_file():
-        for line in rows_path.read_text().splitlines():
-            row = json.loads(line)
-            done[(row["input"], row["method"])] = row
+    rows_path = args.out / ROWS_FILE
+    done = keyed_rows(rows_path, lambda row: (row["input"], row["method"]))
 
     def tag_of(method: str) -> str:
         tag = f"{method}-forced" if args.force_adaptive and method.startswith("va-") else method
@@ -277,8 +265,7 @@ def main(argv=None) -> int:
             row["inconsistency"] = inc
             shutil.copy(run_dir / "inconsistency.png", args.out / f"{name}-{tag}_inconsistency.png")
         done[key] = row
-        with open(rows_path, "a") as f:
-            f.write(json.dumps(row) + "\n")
+        append_row(rows_path, row)
         print(f"    done in {seconds:.0f} s: train PSNR {row.get('train_psnr', float('nan')):.2f}, "
               f"adaptive: {row.get('adaptive_phases', '-')}", flush=True)
 

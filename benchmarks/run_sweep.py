@@ -26,6 +26,7 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from va_plugin.bench.experiment import Experiment, axis_values, paired_axis_rows
 from va_plugin.bench.presets import BACKBONE_TITLES
 from va_plugin.bench.report import (
     axis_table,
@@ -40,7 +41,6 @@ from va_plugin.bench.report import (
     write_outputs,
 )
 from va_plugin.bench.rows import RowSpec
-from va_plugin.cli.bench import Experiment, axis_values, paired_axis_rows
 from va_plugin.cli.bench import main as bench_main
 
 

@@ -19,9 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from va_plugin.bench.experiment import Experiment, paired_rows
 from va_plugin.bench.report import delta_table, plot_time_curves, report_sections, write_outputs
 from va_plugin.bench.rows import RowSpec, scene_of
-from va_plugin.cli.bench import Experiment, paired_rows
 from va_plugin.cli.bench import main as bench_main
 
 PAPER_TABLE1 = {

@@ -24,7 +24,7 @@ import numpy as np
 import torch
 
 from va_plugin.api import load_run
-from va_plugin.bench.store import ROWS_FILE, ResultStore
+from va_plugin.bench.store import ROWS_FILE, ResultStore, append_row, keyed_rows
 from va_plugin.cli.common import friendly_errors
 from va_plugin.errors import ConfigError
 from va_plugin.eval.evaluate import ground_truth_mesh_path, image_metrics, load_mesh
@@ -212,11 +212,7 @@ def main(argv=None) -> int:
     bakes = ["robust", "mean"] + [b for b in bakes if b not in ("robust", "mean")]
     check_texture_size(args.texture_size)
     torch.set_num_threads(args.threads)
-    done = {}
-    if args.out.exists():
-        for line in args.out.read_text().splitlines():
-            record = json.loads(line)
-            done[resume_key(record)] = record
+    done = keyed_rows(args.out, resume_key)
     key = lambda run: resume_key({"run": str(run), "mesh": args.mesh, "mesh_resolution": args.mesh_resolution,
                                   "texture_size": args.texture_size, "max_faces": args.max_faces,
                                   "supersample": args.supersample})
@@ -226,8 +222,7 @@ def main(argv=None) -> int:
         record = evaluate(run, args.texture_size, args.max_views, args.timing_views if k == 0 else 0, bakes,
                           args.reuse_field_scores, args.mesh, args.mesh_resolution, args.max_faces, args.supersample)
         done[key(run)] = record
-        with args.out.open("a") as f:
-            f.write(json.dumps(record) + "\n")
+        append_row(args.out, record)
         print(f"{run.name}: field lpips {record['field']['lpips']:.4f}, mesh robust {record['robust']['lpips']:.4f}, "
               f"mean {record['mean']['lpips']:.4f}; bake {record['robust']['seconds']}", flush=True)
     print(table([done[key(r)] for r in args.runs if key(r) in done]))

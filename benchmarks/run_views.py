@@ -19,9 +19,9 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from va_plugin.bench.experiment import Experiment, axis_values, paired_axis_rows
 from va_plugin.bench.report import axis_table, plot_against, report_sections, write_outputs
 from va_plugin.bench.rows import RowSpec
-from va_plugin.cli.bench import Experiment, axis_values, paired_axis_rows
 from va_plugin.cli.bench import main as bench_main
 
 

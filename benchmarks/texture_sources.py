@@ -21,7 +21,6 @@ like the field (PSNR, LPIPS). The two bakes:
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 from pathlib import Path
 
@@ -29,6 +28,7 @@ import numpy as np
 import torch
 
 from va_plugin.api import load_run
+from va_plugin.bench.store import append_row, keyed_rows
 from va_plugin.cli.common import friendly_errors
 from va_plugin.export.atlas import rasterize_uv
 from va_plugin.export.mesh import extract_mesh
@@ -143,17 +143,13 @@ def main(argv=None) -> int:
     parser.add_argument("--score", action="store_true", help="also score the textured meshes on held-out views")
     args = parser.parse_args(argv)
     torch.set_num_threads(1)
-    done = {}
-    if args.out.exists():
-        done = {r["run"]: r for r in map(json.loads, args.out.read_text().splitlines()) if r}
-    args.out.parent.mkdir(parents=True, exist_ok=True)
+    done = keyed_rows(args.out, lambda row: row["run"])
     records = []
     for run in args.runs:
         record = done.get(str(run))
         if record is None or (args.score and "lpips" not in record["before"]):
             record = evaluate(run, args.texture_size, args.score)
-            with args.out.open("a") as f:
-                f.write(json.dumps(record) + "\n")
+            append_row(args.out, record)
         records.append(record)
         print(f"{run}: unseen {record['before']['unseen']:.4f} -> {record['after']['unseen']:.4f}, white "
               f"{record['before']['white']:.4f} -> {record['after']['white']:.4f}", file=sys.stderr)

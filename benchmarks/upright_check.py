@@ -33,17 +33,11 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from va_plugin.bench.catalog import DEFAULT_GENERATED_ROOT, generator_outputs
+from va_plugin.cli.common import friendly_errors
+
 REPO = Path(__file__).resolve().parents[1]
-DEFAULT_ROOT = REPO.parent / "shared" / "data" / "generated"
 FACES_TOLERANCE = 0.01
-
-
-def find_inputs(root: Path) -> list[tuple[str, Path]]:
-    """``(name, path)`` of every PNG below ``root``'s generator folders, sorted."""
-    if not root.is_dir():
-        raise SystemExit(f"error: no generator outputs at {root} (pass --data-root)")
-    return [(p.stem, p) for sub in sorted(q for q in root.iterdir() if q.is_dir())
-            for p in sorted(sub.iterdir()) if p.suffix.lower() == ".png"]
 
 
 def transform(points: np.ndarray, matrix: np.ndarray) -> np.ndarray:
@@ -124,9 +118,10 @@ def markdown(rows: list[dict], faces: int) -> str:
     return "\n".join(lines) + "\n"
 
 
+@friendly_errors
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--data-root", type=Path, default=DEFAULT_ROOT)
+    parser.add_argument("--data-root", type=Path, default=DEFAULT_GENERATED_ROOT)
     parser.add_argument("--out", type=Path, default=REPO / "outputs" / "upright")
     parser.add_argument("--quality", default="fast", choices=("fast", "default", "accurate"))
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the quality's)")
@@ -135,7 +130,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--threads", type=int, default=1)
     parser.add_argument("--inputs", default="", help="comma-separated input names (default: all)")
     args = parser.parse_args(argv)
-    inputs = find_inputs(args.data_root)
+    inputs = generator_outputs(args.data_root, folders=False)
     if args.inputs:
         inputs = [(n, p) for n, p in inputs if n in args.inputs.split(",")]
     args.out.mkdir(parents=True, exist_ok=True)

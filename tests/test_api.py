@@ -15,7 +15,9 @@ from va_plugin import api
 from va_plugin.cli import recon
 from va_plugin.cli import train as train_cli
 from va_plugin.config import config_digest
+from va_plugin.engine.options import override_list
 from va_plugin.errors import ConfigError
+from va_plugin.utils.threads import training_in_this_thread
 
 TINY = {"pipeline.datamanager.rays_per_batch": 32, "pipeline.model.n_samples": 8, "pipeline.model.n_importance": 8,
         "pipeline.model.crossings_samples": 16}
@@ -32,9 +34,9 @@ def _shrunk(monkeypatch):
     build = api.build_config
 
     def tiny_build(*args, **kwargs):
-        overrides = api._override_list(kwargs.pop("overrides", None))
+        overrides = override_list(kwargs.pop("overrides", None))
         kwargs.update(steps=2, device="cpu")
-        return build(*args, overrides=[*overrides, *api._override_list(TINY)], **kwargs)
+        return build(*args, overrides=[*overrides, *override_list(TINY)], **kwargs)
 
     reconstruct = api.reconstruct
     monkeypatch.setattr(api, "build_config", tiny_build)
@@ -145,19 +147,19 @@ def test_a_call_training_beside_another_thread_is_warned_about():
     entered, leave = threading.Event(), threading.Event()
 
     def first():  # its warnings go to the main thread's record (warnings' state is the process's)
-        with api.training_in_this_thread("train()"):
+        with training_in_this_thread("train()"):
             entered.set()
             leave.wait(10)
 
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        with api.training_in_this_thread("reconstruct()"):
+        with training_in_this_thread("reconstruct()"):
             pass
         assert caught == []
         other = threading.Thread(target=first)
         other.start()
         entered.wait(10)
-        with api.training_in_this_thread("reconstruct()"):
+        with training_in_this_thread("reconstruct()"):
             pass
         leave.set()
         other.join(10)

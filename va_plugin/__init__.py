@@ -7,7 +7,7 @@ with interrupt_deferred():  # trimesh's imports swallow a Ctrl-C that lands duri
     import trimesh  # noqa: F401
 
 API = ("reconstruct", "build_config", "train", "export_mesh", "evaluate", "render", "load_run",
-       "Reconstruction", "MeshFiles", "LoadedRun", "TrainingInterrupted")
+       "Reconstruction", "MeshFiles", "LoadedRun", "ExportConfig", "TrainingInterrupted")
 """The names of :mod:`va_plugin.api` that ``import va_plugin`` offers."""
 
 

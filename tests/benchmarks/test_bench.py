@@ -9,12 +9,12 @@ import math
 import pytest
 from bench_scripts import scripts  # noqa: F401  (fixture)
 
+from va_plugin.bench import experiment
 from va_plugin.bench.catalog import SceneSpec, expand_scene_names, input_error
 from va_plugin.bench.presets import get_preset
 from va_plugin.bench.report import delta_table, metric_delta, summary_table
 from va_plugin.bench.rows import RowSpec, fingerprint, row_config, run_row, scene_of
 from va_plugin.bench.store import ResultStore
-from va_plugin.cli import bench as bench_cli
 from va_plugin.config import to_dict
 from va_plugin.errors import ConfigError, VAError
 
@@ -120,7 +120,7 @@ def fake_result(row, config, scene_dir, evaluation, row_fingerprint, **_):
 
 
 def test_an_interrupt_loses_only_the_row_in_flight(scripts, tiny_scene, tmp_path, monkeypatch):
-    monkeypatch.setattr(bench_cli, "ensure_scene", lambda *args: tiny_scene)
+    monkeypatch.setattr(experiment, "ensure_scene", lambda *args: tiny_scene)
     calls = []
 
     def interrupted_third(row, *args, **kwargs):
@@ -129,14 +129,14 @@ def test_an_interrupt_loses_only_the_row_in_flight(scripts, tiny_scene, tmp_path
             raise KeyboardInterrupt
         return fake_result(row, *args, **kwargs)
 
-    monkeypatch.setattr(bench_cli, "run_row", interrupted_third)
+    monkeypatch.setattr(experiment, "run_row", interrupted_third)
     argv = ["--preset", "smoke", "--out", str(tmp_path / "out")]
-    assert scripts["table1"].main(argv) == bench_cli.EXIT_INTERRUPTED
+    assert scripts["table1"].main(argv) == experiment.EXIT_INTERRUPTED
     assert len((tmp_path / "out" / "rows.jsonl").read_text().splitlines()) == 2
     first = list(calls)
 
     calls.clear()
-    monkeypatch.setattr(bench_cli, "run_row", lambda row, *a, **k: calls.append(row.key) or fake_result(row, *a, **k))
+    monkeypatch.setattr(experiment, "run_row", lambda row, *a, **k: calls.append(row.key) or fake_result(row, *a, **k))
     assert scripts["table1"].main(argv + ["--resume"]) == 0
     assert len(calls) == 2 and calls[0] == first[2]  # the row in flight, then the one never started
     rows = json.loads((tmp_path / "out" / "table1.json").read_text())["rows"]
@@ -158,7 +158,7 @@ def test_jobs_below_one_are_refused(jobs, scripts, tmp_path, capsys):
 def test_a_row_failing_in_a_worker_stops_the_benchmark_with_its_error(scripts, tmp_path, monkeypatch, capfd):
     import multiprocessing
 
-    monkeypatch.setattr(bench_cli, "ensure_scene", lambda *args: tmp_path)  # no scene there: setup() raises
+    monkeypatch.setattr(experiment, "ensure_scene", lambda *args: tmp_path)  # no scene there: setup() raises
     argv = ["--preset", "smoke", "--out", str(tmp_path / "out"), "--device", "cpu", "--jobs", "2"]
     assert scripts["table1"].main(argv) == 2
     captured = capfd.readouterr()
@@ -236,8 +236,8 @@ def test_sweep_verdict_on_synthetic_rows(scripts):
 
 @pytest.mark.parametrize("name", ["views", "ablation", "sweep"])
 def test_every_script_writes_its_report(name, scripts, tiny_scene, tmp_path, monkeypatch):
-    monkeypatch.setattr(bench_cli, "ensure_scene", lambda *args: tiny_scene)
-    monkeypatch.setattr(bench_cli, "run_row", fake_result)
+    monkeypatch.setattr(experiment, "ensure_scene", lambda *args: tiny_scene)
+    monkeypatch.setattr(experiment, "run_row", fake_result)
     out = tmp_path / name
     assert scripts[name].main(["--preset", "smoke", "--out", str(out)]) == 0
     data = json.loads((out / f"{name}.json").read_text())
@@ -256,3 +256,16 @@ def test_result_store_skips_a_line_cut_short_by_a_crash(tmp_path):
     records, skipped = read_json_lines(rows)
     assert [r["key"] for r in records] == ["a", "b"] and skipped == 1  # the blank line is not counted
     assert sorted(ResultStore(tmp_path, resume=True).rows) == ["a", "b"]
+
+
+def test_a_scripts_row_file_resumes_by_its_key(tmp_path):
+    """The JSON-lines files the one-off scripts append to: a later row replaces an earlier one with its key,
+    NaN is written as null, and a missing file is no rows."""
+    from va_plugin.bench.store import append_row, keyed_rows
+
+    rows = tmp_path / "out" / "rows.jsonl"
+    assert keyed_rows(rows, lambda row: row["run"]) == {}
+    for row in ({"run": "a", "lpips": 0.1}, {"run": "b", "lpips": float("nan")}, {"run": "a", "lpips": 0.2}):
+        append_row(rows, row)
+    assert keyed_rows(rows, lambda row: row["run"]) == {"a": {"run": "a", "lpips": 0.2},
+                                                        "b": {"run": "b", "lpips": None}}

@@ -6,6 +6,9 @@ import json
 import pytest
 from bench_scripts import load_script
 
+from va_plugin.bench.catalog import generator_outputs
+from va_plugin.errors import ConfigError
+
 
 @pytest.fixture(scope="module")
 def gen():
@@ -18,10 +21,11 @@ def test_finds_pngs_and_folders_sorted_and_refuses_a_missing_root(gen, tmp_path)
     for path in ("syncdreamer/b.png", "syncdreamer/a.png", "zero123pp/fox.png", "syncdreamer/notes.txt"):
         (tmp_path / path).write_bytes(b"")
     (tmp_path / "zero123pp" / "wonder_like").mkdir()
-    names = [name for name, _ in gen.find_inputs(tmp_path)]
+    names = [name for name, _ in generator_outputs(tmp_path)]
     assert names == ["a", "b", "fox", "wonder_like"]
-    with pytest.raises(SystemExit, match="no generator outputs"):
-        gen.find_inputs(tmp_path / "absent")
+    assert [name for name, _ in generator_outputs(tmp_path, folders=False)] == ["a", "b", "fox"]
+    with pytest.raises(ConfigError, match="no generator outputs"):
+        generator_outputs(tmp_path / "absent")
 
 
 def test_reads_the_last_training_record_and_the_adaptive_decision(gen, tmp_path):

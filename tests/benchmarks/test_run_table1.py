@@ -11,9 +11,8 @@ import pytest
 import torch
 from bench_scripts import scripts  # noqa: F401  (fixture)
 
-from va_plugin.bench import parallel
+from va_plugin.bench import experiment, parallel
 from va_plugin.bench.report import EXTRA_FIELDS, FIELDS
-from va_plugin.cli import bench as bench_cli
 
 METHODS = {"neus", "va-neus", "ngp", "va-ngp"}
 METRICS = ("psnr", "ssim", "lpips", "cd", "iou", "fscore")
@@ -98,7 +97,7 @@ def test_resume_skips_finished_rows(scripts, smoke_run, monkeypatch, capsys):
     def must_not_run(*args, **kwargs):
         raise AssertionError("a finished row was trained again")
 
-    monkeypatch.setattr(bench_cli, "run_row", must_not_run)
+    monkeypatch.setattr(experiment, "run_row", must_not_run)
     monkeypatch.setattr(parallel, "get_context", must_not_run)  # no worker process is started
     assert scripts["table1"].main(smoke_argv(smoke_run, jobs) + ["--resume"]) == 0
     assert "0 rows run, 4 skipped" in capsys.readouterr().out

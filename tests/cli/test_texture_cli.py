@@ -145,9 +145,9 @@ def test_more_faces_than_the_grid_gives_come_from_a_finer_grid(run, tmp_path, ca
 
 
 def test_more_faces_than_the_finest_grid_gives_keeps_the_mesh_with_a_note(run, tmp_path, capsys, monkeypatch):
-    from va_plugin import api
+    from va_plugin.export import mesh
 
-    monkeypatch.setattr(api, "FACES_MAX_RESOLUTION", 20)  # the finest grid, small for the test
+    monkeypatch.setattr(mesh, "FACES_MAX_RESOLUTION", 20)  # the finest grid, small for the test
     code = export_cli.main(["mesh", "--load-dir", str(run), "--texture", "--texture-size", "16", "--resolution", "16",
                             "--faces", "1000000", "--output", str(tmp_path / "m.glb"), "--device", "cpu", "--quiet"])
     err = capsys.readouterr().err.strip().splitlines()

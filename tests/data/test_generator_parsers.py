@@ -14,6 +14,8 @@ from va_plugin.cameras import opengl_to_opencv
 from va_plugin.cli import train as train_cli
 from va_plugin.data import rigs
 from va_plugin.data.dataparsers import FORMATS, detect_format, resolve_dataparser
+from va_plugin.data.dataparsers.generators import SyncDreamerDataParserConfig
+from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
 from va_plugin.data.images import read_image, write_image
 from va_plugin.errors import DataError
 from va_plugin.raycast import MeshRenderer, position_albedo
@@ -347,3 +349,10 @@ def test_wonder3d_normal_maps_supervise_neus(wonder3d_folder, tmp_path):
         losses[weight] = [r.get("loss_normal") for r in rows if "loss" in r]
     assert all(v is not None and 0.0 <= v <= 0.2 for v in losses[0.1])  # weight x (1 - cos), 1 - cos in [0, 2]
     assert losses[0.0] == [None, None]
+
+
+def test_a_dataparser_declares_the_files_it_reads():
+    """The run folder's fingerprint and the path resolution read these, no attribute is probed."""
+    assert TransformsDataParserConfig(data=Path("scene")).input_paths() == {"data": Path("scene")}
+    strip = SyncDreamerDataParserConfig(data=Path("s.png"), masks=Path("m"))
+    assert strip.input_paths() == {"data": Path("s.png"), "masks": Path("m")}

@@ -180,9 +180,9 @@ def test_the_data_fingerprint_follows_the_files(tiny_scene, tmp_path):
 
 
 def test_export_to_a_read_only_place_is_refused_before_marching_cubes(run, tmp_path, capsys, monkeypatch):
-    from va_plugin import api  # the module whose marching cubes must not run
+    from va_plugin.export import files  # the module whose marching cubes must not run
 
-    monkeypatch.setattr(api, "extract_mesh", lambda *a, **k: pytest.fail("marching cubes ran"))
+    monkeypatch.setattr(files, "extract_mesh", lambda *a, **k: pytest.fail("marching cubes ran"))
     locked = tmp_path / "locked"
     locked.mkdir()
     locked.chmod(0o500)

@@ -49,7 +49,9 @@ class ViewAttention(nn.Module):
 
 
 def reference_attention(module: ViewAttention, tokens: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """The same computation written out with loops over samples, heads and views (for tests only)."""
+    """The same computation written out with loops over samples, heads and views (for tests only):
+    ``tokens [n_samples, n_views, feature_dim]`` -> (fused tokens of the same shape, attention
+    ``[n_samples, n_heads, n_views, n_views]``)."""
     s, n, _ = tokens.shape
     h, dh = module.n_heads, module.head_dim
     w, b = module.qkv.weight, module.qkv.bias

@@ -245,7 +245,9 @@ class ViewAdaptiveField(Field):
     def _routed(self, flat: torch.Tensor, views: torch.Tensor, weights: torch.Tensor, routes: SampleRoutes,
                 mode: ColorMode) -> dict[str, torch.Tensor]:
         """The shared color everywhere, overwritten where ``routes`` send a sample down the adaptive path
-        (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``)."""
+        (``routes.adaptive``) or through its own view's branch alone (``routes.own_only``); ``flat [S, F]``:
+        the samples' shared features, ``views [S]`` their rays' training views, ``weights [S]`` their
+        rendering weights."""
         index = routes.adaptive
         sub = self._adaptive(flat.index_select(0, index), views[index], weights[index], mode)
         base_rgb = self.base.decode_color(flat)
@@ -333,8 +335,8 @@ class ViewAdaptiveField(Field):
         self.attention_mass += w.sum()
 
     def attention_matrix(self) -> torch.Tensor | None:
-        """The n x n attention matrix averaged over surface samples (row i: how view i's feature
-        draws on each view j), or None before fusion has trained."""
+        """The ``[n_views, n_views]`` attention matrix averaged over surface samples (row i: how view i's
+        feature draws on each view j), or None before fusion has trained."""
         if float(self.attention_mass) <= 0:
             return None
         return (self.attention_sum / self.attention_mass).cpu()
@@ -474,7 +476,7 @@ def heaviest_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor, k: int) -
 
 def _heaviest_one_per_ray(weights: torch.Tensor, ray_indices: torch.Tensor) -> torch.Tensor:
     """:func:`heaviest_per_ray` for ``k = 1`` by two scatter reductions: each ray's largest weight, then
-    the first sample of the ray that carries it."""
+    the first sample of the ray that carries it; ``weights [S], ray_indices [S] -> bool [S]``."""
     rays = ray_indices.long()
     n_rays = int(rays.max()) + 1
     top = weights.new_full((n_rays,), -torch.inf).scatter_reduce(0, rays, weights, "amax")

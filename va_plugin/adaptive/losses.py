@@ -21,8 +21,9 @@ def feature_consistency(fused: torch.Tensor) -> torch.Tensor:
 
 
 def weighted_mean(values: torch.Tensor, weights: torch.Tensor | None) -> torch.Tensor:
-    """Mean of per-sample ``values`` weighted by (detached) rendering ``weights`` of the same shape;
-    the plain mean without weights, or when the weights sum to (almost) nothing."""
+    """Mean of per-sample ``values [S]`` (the attention's samples, ``[A]``) weighted by (detached) rendering
+    ``weights`` of the same shape, a scalar; the plain mean without weights, or when the weights sum to
+    (almost) nothing."""
     if values.numel() == 0:
         return values.sum()
     if weights is None or weights.shape != values.shape:

@@ -257,8 +257,8 @@ def run_job(spec: JobSpec, send: Send) -> None:
         result = reconstruct(spec.input, run_dir, method=options.method, quality=spec.quality, views=spec.views,
                              steps=options.steps, device=options.device, progress=ProgressReport(send),
                              on_message=lambda line: send({"kind": "message", "line": line}),
-                             callbacks=callbacks, resume=spec.resume, texture_size=options.texture_size,
-                             mesh_resolution=options.mesh_resolution, turntable_frames=options.turntable_frames,
+                             callbacks=callbacks, resume=spec.resume, export=options.export(),
+                             turntable_frames=options.turntable_frames,
                              threads=options.threads, overrides=list(options.overrides))
         record = dict(result.record)
         video = browser_video(result.turntable) if result.turntable is not None else None

@@ -19,12 +19,13 @@ from typing import Any
 
 import gradio as gr
 
-from va_plugin.api import MESH_FILE, QUALITIES, TEXTURED_MESH_FILE
+from va_plugin.api import QUALITIES
 from va_plugin.app.jobs import JobSpec, Launcher, prepare_job, resume_command
 from va_plugin.app.settings import AppSettings
 from va_plugin.app.uploads import VIEW_CHOICES, Upload, inspect_upload, parse_views, stage_upload
 from va_plugin.engine.trainer import list_checkpoints
 from va_plugin.errors import VAError
+from va_plugin.export.files import MESH_FILE, TEXTURED_MESH_FILE
 
 TITLE = "va-plugin: generator output to textured mesh"
 INTRO = ("Drop a **SyncDreamer strip** or a **Zero123++ grid** (PNG), or a **zip** of a Wonder3D folder or of a "

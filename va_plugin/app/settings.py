@@ -7,7 +7,7 @@ from pathlib import Path
 
 from va_plugin.api import RECOMMENDED_METHOD
 from va_plugin.errors import ConfigError
-from va_plugin.export.texture import check_texture_size
+from va_plugin.export.config import ExportConfig
 from va_plugin.registry import discover_methods
 
 DEFAULT_RUNS = Path("outputs") / "app"
@@ -26,9 +26,9 @@ class RunOptions:
     """Training steps (None: the quality's own budget)."""
     overrides: list[str] = field(default_factory=list)
     """Config overrides (``KEY=VALUE``, as ``va-recon --set``)."""
-    texture_size: int = 1024
+    texture_size: int = ExportConfig.texture_size
     """Side of the baked texture, in texels."""
-    mesh_resolution: int = 128
+    mesh_resolution: int = ExportConfig.mesh_resolution
     """Marching-cubes grid of the mesh."""
     turntable_frames: int = 36
     """Frames of the turntable video."""
@@ -38,6 +38,10 @@ class RunOptions:
     """Side of a preview render, in pixels."""
     threads: int = 0
     """CPU threads of a run's torch (0: torch's default)."""
+
+    def export(self) -> ExportConfig:
+        """The mesh and texture options of a run (the rest: :class:`ExportConfig`'s defaults, as ``va-recon``)."""
+        return ExportConfig(mesh_resolution=self.mesh_resolution, texture_size=self.texture_size)
 
     def run_options(self) -> RunOptions:
         """These options alone (of a :class:`AppSettings`, say)."""
@@ -69,9 +73,7 @@ class AppSettings(RunOptions):
             raise ConfigError(f"--steps must be at least 1, got {self.steps}")
         if self.max_upload_mb <= 0:
             raise ConfigError(f"--max-upload-mb must be positive, got {self.max_upload_mb:g}")
-        check_texture_size(self.texture_size)
-        if self.mesh_resolution < 8:
-            raise ConfigError(f"--mesh-resolution must be at least 8, got {self.mesh_resolution}")
+        self.export().validate()
         if self.turntable_frames < 1:
             raise ConfigError(f"--turntable-frames must be at least 1, got {self.turntable_frames}")
         if self.preview_every < 0 or self.preview_size < 8:

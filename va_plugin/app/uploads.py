@@ -19,13 +19,14 @@ from pathlib import Path, PureWindowsPath
 
 import numpy as np
 
-from va_plugin.api import QUALITIES, build_config, check_views
+from va_plugin.api import QUALITIES, build_config
 from va_plugin.batch.inputs import find_objects
 from va_plugin.data.dataparsers import FORMATS, detect_format, image_shape
 from va_plugin.data.dataparsers.generators import IMAGE_SUFFIXES, image_files
 from va_plugin.data.dataparsers.transforms import referenced_files
 from va_plugin.data.foreground import mask_picture
 from va_plugin.data.images import VIDEO_SUFFIXES, read_video
+from va_plugin.engine.options import check_views
 from va_plugin.errors import ConfigError, DataError, VAError
 
 FORMAT_NAMES = {"syncdreamer": "SyncDreamer strip", "zero123pp": "Zero123++ grid", "wonder3d": "Wonder3D folder",

@@ -25,6 +25,7 @@ from va_plugin import api
 from va_plugin.data.images import write_image
 from va_plugin.engine.run_folder import is_run_folder
 from va_plugin.errors import VAError
+from va_plugin.export.config import ExportConfig
 from va_plugin.export.render import mesh_views
 
 LOG_FILE = "batch.log"
@@ -34,9 +35,8 @@ METRICS = api.METRICS
 
 @dataclass(frozen=True)
 class Evaluation:
-    """How an object with ground truth is evaluated, and how its mesh is extracted."""
+    """How an object with ground truth is evaluated (its mesh: the job's :class:`ExportConfig`)."""
 
-    mesh_resolution: int = 128
     image_scale: float = 1.0
     max_views: int | None = None
     n_samples: int = 100_000
@@ -58,19 +58,12 @@ class ObjectJob:
     keywords."""
     threads: int = 1
     evaluation: Evaluation = field(default_factory=Evaluation)
-    texture_size: int = 0
-    """Side of the baked texture (``va-export mesh --texture``); 0: vertex colors only."""
-    fusion: str = "robust"
-    """How the texture fuses disagreeing views (``va-export mesh --fusion``)."""
+    export: ExportConfig = field(default_factory=ExportConfig)
+    """The mesh and texture options (``va-export mesh``'s; ``mesh.ply`` stays in the training frame)."""
     turntable_frames: int = 0
     """Frames of a turntable of the textured mesh (``RUN/turntable/``); 0: none."""
     progress: bool = False
     """Progress bars for training, bake and turntable (off in batches, whose jobs log to a file)."""
-    faces: int | None = None
-    """Face count of the textured mesh (``va-export mesh --faces``); None: at most 40000."""
-    frame: str = "upright"
-    """Frame of ``mesh.glb`` / ``mesh.obj`` (``va-export mesh --frame``); ``mesh.ply`` stays in the training
-    frame."""
 
 
 def _one_line(exc: BaseException) -> str:
@@ -109,10 +102,8 @@ def reconstruct(job: ObjectJob, on_message=None) -> dict[str, Any]:
     (:func:`run_object` turns that into a record)."""
     settings = job.evaluation
     result = api.reconstruct(
-        job.data, job.run_dir, job.method, views=job.options.get("views") or "all", texture=job.texture_size > 0,
-        texture_size=job.texture_size or 1024, fusion=job.fusion, mesh_resolution=settings.mesh_resolution,
-        turntable_frames=job.turntable_frames, threads=job.threads, faces=job.faces, frame=job.frame,
-        show_progress=job.progress,
+        job.data, job.run_dir, job.method, views=job.options.get("views") or "all", export=job.export,
+        turntable_frames=job.turntable_frames, threads=job.threads, show_progress=job.progress,
         on_message=on_message, resume=is_run_folder(job.run_dir),  # continue an interrupted object
         overwrite=True,  # runs/<name> is the batch's own (its batch.log)
         evaluate_options={

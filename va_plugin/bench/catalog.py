@@ -20,6 +20,21 @@ from va_plugin.bench.scenes.inconsistency import KINDS
 from va_plugin.errors import ConfigError, DataError
 
 SCENE_FILE = "scene.json"
+DATA_ROOT = Path(__file__).resolve().parents[3] / "shared" / "data"
+"""``../shared/data`` beside the repository, where the benchmarks read their inputs by default."""
+DEFAULT_GSO_ROOT = DATA_ROOT / "gso"
+"""The Google Scanned Objects (``--data-root`` of the scene builder and the experiment scripts)."""
+DEFAULT_GENERATED_ROOT = DATA_ROOT / "generated"
+"""Real generator outputs, one folder per generator (``--data-root`` of the scripts that run them)."""
+
+
+def generator_outputs(root: Path, folders: bool = True) -> list[tuple[str, Path]]:
+    """``(name, path)`` of every generator output in ``root``'s generator folders, sorted: the PNG files
+    and, with ``folders``, the folders (Wonder3D's layout). ConfigError when ``root`` is no folder."""
+    if not Path(root).is_dir():
+        raise ConfigError(f"no generator outputs at {root} (pass --data-root)")
+    return [(item.stem, item) for sub in sorted(p for p in Path(root).iterdir() if p.is_dir())
+            for item in sorted(sub.iterdir()) if item.suffix.lower() == ".png" or (folders and item.is_dir())]
 
 
 @dataclass(frozen=True)

@@ -9,6 +9,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from va_plugin.errors import ConfigError
+from va_plugin.export.config import ExportConfig
 
 BACKBONES: dict[str, tuple[str, str]] = {"neus": ("neus", "va-neus"), "ngp": ("ngp", "va-ngp")}
 """backbone -> (original method, view-adaptive method), as registered."""
@@ -22,7 +23,7 @@ class EvalSettings:
 
     image_scale: float = 1.0  # held-out views (and their ground truth) at this fraction of the scene's size
     max_views: int | None = None  # held-out views scored (the first ones; None: all)
-    mesh_resolution: int = 128  # marching-cubes grid of the run's mesh
+    mesh_resolution: int = ExportConfig.mesh_resolution  # marching-cubes grid of the run's mesh
     n_samples: int = 100_000  # surface samples per mesh for Chamfer distance and F-score
 
 
@@ -75,7 +76,7 @@ PRESETS: dict[str, BenchPreset] = {
                     "budget, every held-out view at full size, the final state only "
                     "(benchmarks/run_backbone.py; hours)",
         scenes=("gso",), axis_scenes=("gso",),
-        evaluation=EvalSettings(image_scale=1.0, max_views=None, mesh_resolution=128, n_samples=100_000),
+        evaluation=EvalSettings(image_scale=1.0, max_views=None, n_samples=100_000),
         # scoring 12 views at 256 px costs about as much as training: only the final state
         curve_points=1),
     "full": BenchPreset(
@@ -83,7 +84,7 @@ PRESETS: dict[str, BenchPreset] = {
         description="every procedural object and every GSO object under --data-root, each method's default "
                     "budget (hours)",
         scenes=("procedural", "gso"), axis_scenes=("mug", "knot", "robot", "gso:alarm", "gso:lion"),
-        evaluation=EvalSettings(image_scale=0.5, max_views=None, mesh_resolution=128, n_samples=100_000),
+        evaluation=EvalSettings(image_scale=0.5, max_views=None, n_samples=100_000),
         curve_points=5),
 }
 

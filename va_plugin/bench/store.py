@@ -9,6 +9,7 @@ from __future__ import annotations
 import json
 import math
 import os
+from collections.abc import Callable, Hashable
 from pathlib import Path
 from typing import Any
 
@@ -30,6 +31,25 @@ def read_json_lines(path: Path) -> tuple[list[Any], int]:
         except json.JSONDecodeError:
             skipped += 1
     return records, skipped
+
+
+def keyed_rows(path: Path, key: Callable[[dict[str, Any]], Hashable]) -> dict[Hashable, dict[str, Any]]:
+    """The rows of a JSON-lines file by ``key(row)`` (a later line replaces an earlier one with its key);
+    empty when there is no file. A script that appends rows as it goes resumes from these."""
+    path = Path(path)
+    if not path.is_file():
+        return {}
+    return {key(row): row for row in read_json_lines(path)[0] if isinstance(row, dict)}
+
+
+def append_row(path: Path, row: dict[str, Any]) -> None:
+    """Append ``row`` to a JSON-lines file as one line, flushed to disk (NaN written as null)."""
+    path = Path(path)
+    path.parent.mkdir(parents=True, exist_ok=True)
+    with open(path, "a", encoding="utf-8") as handle:
+        handle.write(json.dumps(_finite_or_none(row)) + "\n")
+        handle.flush()
+        os.fsync(handle.fileno())
 
 
 def _finite_or_none(value: Any) -> Any:
@@ -67,9 +87,5 @@ class ResultStore:
         return row if row is not None and row.get("fingerprint") == fingerprint else None
 
     def add(self, row: dict[str, Any]) -> None:
-        self.path.parent.mkdir(parents=True, exist_ok=True)
-        with open(self.path, "a", encoding="utf-8") as handle:
-            handle.write(json.dumps(_finite_or_none(row)) + "\n")
-            handle.flush()
-            os.fsync(handle.fileno())
+        append_row(self.path, row)
         self.rows[row["key"]] = row

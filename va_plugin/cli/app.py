@@ -14,6 +14,7 @@ from va_plugin.api import RECOMMENDED_METHOD
 from va_plugin.app.settings import DEFAULT_RUNS, AppSettings
 from va_plugin.cli.common import check_output_dir, friendly_errors, path_argument
 from va_plugin.errors import VAError
+from va_plugin.export.config import ExportConfig
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -35,8 +36,10 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--max-upload-mb", type=float, default=100.0, help="largest upload taken (default 100 MB)")
     sizes = parser.add_argument_group("job sizes", "the same as va-recon's options of the same name")
     sizes.add_argument("--steps", type=int, default=None, help="training steps of every run (default: the quality's)")
-    sizes.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (default 1024)")
-    sizes.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid (default 128)")
+    sizes.add_argument("--texture-size", type=int, default=ExportConfig.texture_size,
+                       help="texture side in texels (default %(default)s)")
+    sizes.add_argument("--mesh-resolution", type=int, default=ExportConfig.mesh_resolution,
+                       help="marching-cubes grid (default %(default)s)")
     sizes.add_argument("--turntable-frames", type=int, default=36, help="frames of the turntable (default 36)")
     sizes.add_argument("--preview-every", type=int, default=250,
                        help="training steps between preview renders, 0 for none (default 250)")

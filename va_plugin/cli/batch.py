@@ -14,7 +14,7 @@ from typing import Any
 
 from tqdm import tqdm
 
-from va_plugin.api import build_config, check_faces
+from va_plugin.api import build_config
 from va_plugin.batch.engines import ENGINES, import_ray, run_local, run_ray
 from va_plugin.batch.inputs import find_objects
 from va_plugin.batch.job import Evaluation, ObjectJob
@@ -23,15 +23,16 @@ from va_plugin.batch.summary import contact_sheet, write_summary
 from va_plugin.cli.common import (
     EXIT_INTERRUPTED,
     ArgumentParser,
-    add_mesh_file_options,
+    add_export_options,
     add_quiet_option,
+    export_config,
     friendly_errors,
     path_argument,
 )
 from va_plugin.cli.train import add_object_options
 from va_plugin.engine.run_folder import check_writable_folder
 from va_plugin.errors import ConfigError
-from va_plugin.export.texture import check_texture_size
+from va_plugin.export.config import ExportConfig
 from va_plugin.utils.progress import progress_bar
 
 EXIT_SOME_FAILED = 1
@@ -65,18 +66,11 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--retry-failed", action="store_true", help="with --resume: run failed objects again")
     parser.add_argument("--overwrite", action="store_true",
                         help="write the batch into --out even when it holds other files")
-    parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of each mesh")
     parser.add_argument("--eval-image-scale", type=float, default=1.0, help="held-out views rendered at this scale")
     parser.add_argument("--eval-max-views", type=int, default=None, help="evaluate at most this many held-out views")
     parser.add_argument("--eval-samples", type=int, default=100_000,
                         help="surface samples per mesh for the Chamfer distance and F-score")
-    parser.add_argument("--no-texture", action="store_true",
-                        help="skip the textured mesh (RUN/mesh.glb and mesh.obj, va-export mesh --texture); "
-                             "mesh.ply is always written")
-    parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
-    parser.add_argument("--fusion", choices=("robust", "mean"), default="robust",
-                        help="how the texture fuses disagreeing views (as va-export mesh --fusion)")
-    add_mesh_file_options(parser)
+    add_export_options(parser)
     parser.add_argument("--no-progress", action="store_true", help="no progress bar")
     add_quiet_option(parser)
     add_object_options(parser)
@@ -97,16 +91,13 @@ def check_options(args: argparse.Namespace) -> None:
         raise ConfigError("--workers and --threads must be at least 1")
     if args.steps is not None and args.steps < 1:
         raise ConfigError(f"--steps must be at least 1, got {args.steps}")
-    if args.mesh_resolution < 8 or args.eval_image_scale <= 0 or args.eval_samples < 1:
-        raise ConfigError("--mesh-resolution must be at least 8, --eval-image-scale positive and --eval-samples "
-                          "at least 1")
+    if args.eval_image_scale <= 0 or args.eval_samples < 1:
+        raise ConfigError("--eval-image-scale must be positive and --eval-samples at least 1")
     if args.engine != "ray" and (args.ray_address or args.gpus_per_job):
         raise ConfigError("--ray-address and --gpus-per-job need --engine ray")
     if args.retry_failed and not args.resume:
         raise ConfigError("--retry-failed goes with --resume")
-    if not args.no_texture:
-        check_texture_size(args.texture_size)
-    check_faces(args.faces, not args.no_texture)
+    export_config(args)
     check_writable_folder(args.out, flag="--out", inputs=[args.inputs], overwrite=args.overwrite,
                           marker=SETTINGS_FILE)
     if args.engine == "ray":
@@ -130,16 +121,17 @@ def main(argv: list[str] | None = None) -> int:
     options = {name: getattr(args, name) for name in object_option_names()}
     if options.get("fov") is None:  # batches started before --fov existed resume
         options.pop("fov", None)
-    evaluation = Evaluation(args.mesh_resolution, args.eval_image_scale, args.eval_max_views, args.eval_samples)
-    texture_size = 0 if args.no_texture else args.texture_size
-    settings = {"method": args.method, "options": options, "evaluation": asdict(evaluation),
-                "texture_size": texture_size, "fusion": args.fusion}
+    evaluation = Evaluation(args.eval_image_scale, args.eval_max_views, args.eval_samples)
+    export = export_config(args)
+    settings = {"method": args.method, "options": options,
+                "evaluation": {"mesh_resolution": export.mesh_resolution, **asdict(evaluation)},
+                "texture_size": export.texture_size if export.texture else 0, "fusion": export.fusion}
     # the mesh-file settings only when not the defaults, so batches started before they existed resume
-    settings.update({k: v for k, v in (("faces", args.faces), ("frame", args.frame))
-                     if v != {"faces": None, "frame": "upright"}[k]})
+    defaults = ExportConfig()
+    settings.update({k: v for k, v, default in (("faces", export.faces, defaults.faces),
+                                                ("frame", export.frame, defaults.frame)) if v != default})
     manifest = Manifest(out, settings, args.resume)
-    jobs = [ObjectJob(o.name, o.path, out / "runs" / o.name, args.method, options, args.threads, evaluation,
-                      texture_size, args.fusion, faces=args.faces, frame=args.frame)
+    jobs = [ObjectJob(o.name, o.path, out / "runs" / o.name, args.method, options, args.threads, evaluation, export)
             for o in objects if not manifest.finished(o.name, args.retry_failed)]
     names = [o.name for o in objects]
 

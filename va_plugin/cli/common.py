@@ -12,12 +12,14 @@ from pathlib import Path
 
 from va_plugin.engine.run_folder import check_output_dir
 from va_plugin.errors import VAError, once_each
+from va_plugin.export.atlas import MAX_TEXTURE_FACES
+from va_plugin.export.config import ExportConfig
 from va_plugin.export.frame import FRAMES
-from va_plugin.utils.interrupts import terminate_as_interrupt
+from va_plugin.export.fusion import FUSIONS
+from va_plugin.utils.interrupts import EXIT_INTERRUPTED, terminate_as_interrupt
 from va_plugin.utils.paths import user_path
 
 EXIT_USER_ERROR = 2
-EXIT_INTERRUPTED = 130
 
 
 class ArgumentParser(argparse.ArgumentParser):
@@ -67,18 +69,45 @@ def add_quiet_option(parser: argparse.ArgumentParser) -> None:
                              "(warnings and errors still show)")
 
 
-def add_mesh_file_options(parser: argparse.ArgumentParser, *names: str) -> None:
-    """``--faces N`` (also spelt ``names``, e.g. an old name) and ``--frame upright|training``: the face count
-    and the frame of the textured mesh files."""
-    parser.add_argument("--faces", *names, dest="faces", type=int, default=None, metavar="N",
-                        help="face count of the textured mesh: quadric decimation to N faces before the UV unwrap "
-                             "(default: at most 40000; 0 keeps every face; a mesh with fewer faces is kept as "
-                             "it is, with a warning)")
-    parser.add_argument("--frame", choices=FRAMES, default="upright",
+def add_export_options(parser: argparse.ArgumentParser, texture_switch: str = "--no-texture",
+                       resolution_flag: str = "--mesh-resolution", faces_names: tuple[str, ...] = ()) -> None:
+    """The options of :class:`~va_plugin.export.config.ExportConfig`, their defaults its own: the mesh grid
+    (``resolution_flag``), the texture switch (``--texture`` turns it on, ``--no-texture`` off), its size,
+    the fusion, ``--faces N`` (also spelt ``faces_names``, e.g. an old name) and ``--frame``. Read them back
+    with :func:`export_config`."""
+    default = ExportConfig()
+    parser.add_argument(resolution_flag, dest="mesh_resolution", type=int, default=default.mesh_resolution,
+                        help="marching-cubes grid of the mesh (default %(default)s)")
+    if texture_switch == "--texture":
+        parser.add_argument("--texture", action="store_true",
+                            help="UV-unwrap the mesh and bake a texture from the input views (.glb or .obj+.mtl+.png)")
+    else:
+        parser.add_argument("--no-texture", dest="texture", action="store_false",
+                            help="vertex colors only (no mesh.glb or mesh.obj, no turntable); mesh.ply is always "
+                                 "written")
+    parser.add_argument("--texture-size", type=int, default=default.texture_size,
+                        help="texture side in texels, a power of two (default %(default)s)")
+    parser.add_argument("--fusion", choices=FUSIONS, default=default.fusion,
+                        help="how disagreeing views are fused per texel: robust consensus or weighted mean "
+                             "(default %(default)s)")
+    parser.add_argument("--faces", *faces_names, dest="faces", type=int, default=None, metavar="N",
+                        help=f"face count of the textured mesh: quadric decimation to N faces before the UV unwrap "
+                             f"(default: at most {MAX_TEXTURE_FACES}; 0 keeps every face; a mesh with fewer faces "
+                             "is extracted again on a finer grid, or kept as it is with a warning)")
+    parser.add_argument("--frame", choices=FRAMES, default=default.frame,
                         help="frame of the GLB and OBJ files: upright (+Y up, standing on y = 0, centred on the "
                              "vertical axis, as glTF and 3D tools expect) or training (+Z up, as trained); "
                              "PLY stays in the training frame (default %(default)s)")
 
 
-__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "ArgumentParser", "add_mesh_file_options", "add_quiet_option",
-           "check_output_dir", "friendly_errors", "path_argument"]
+def export_config(args: argparse.Namespace, resolution_flag: str = "--mesh-resolution") -> ExportConfig:
+    """The :class:`~va_plugin.export.config.ExportConfig` of the options :func:`add_export_options` added,
+    validated (one line on a bad one)."""
+    export = ExportConfig(mesh_resolution=args.mesh_resolution, texture=args.texture, texture_size=args.texture_size,
+                          faces=args.faces, fusion=args.fusion, frame=args.frame)
+    export.validate(resolution_flag=resolution_flag)
+    return export
+
+
+__all__ = ["EXIT_INTERRUPTED", "EXIT_USER_ERROR", "ArgumentParser", "add_export_options", "add_quiet_option",
+           "check_output_dir", "export_config", "friendly_errors", "path_argument"]

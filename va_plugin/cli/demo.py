@@ -80,7 +80,7 @@ def main(argv: list[str] | None = None) -> int:
         print(f"{interrupt}; run va-demo again to continue", file=sys.stderr)
         return EXIT_INTERRUPTED
     loaded = load_run(run, args.device)
-    files = export_mesh(loaded, texture=False, resolution=128)
+    files = export_mesh(loaded, texture=False)
     # the mesh just written is the one scored, and the scored views are the ones saved: nothing twice
     result = evaluate(loaded, image_scale=0.5, max_views=4, progress=show_progress(args), mesh=files.mesh,
                       render_dir=run / "renders" / "test_views")

@@ -6,11 +6,15 @@ import argparse
 import sys
 import time
 
-from va_plugin.api import EVAL_FILE, check_evaluate_options, check_scorable, evaluate, load_run, write_json
+from va_plugin.api import EVAL_FILE, evaluate, load_run
 from va_plugin.cli.common import ArgumentParser, friendly_errors, path_argument
+from va_plugin.eval.evaluate import check_evaluate_options, check_scorable
 from va_plugin.eval.mesh_render import check_supersample, textured_mesh_metrics
+from va_plugin.export.config import ExportConfig, check_texture_size
+from va_plugin.export.fusion import FUSIONS
 from va_plugin.export.mesh import extract_mesh
-from va_plugin.export.texture import bake_texture, check_texture_size, run_views
+from va_plugin.export.texture import bake_texture, run_views
+from va_plugin.utils.files import write_json
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -20,14 +24,17 @@ def build_parser() -> argparse.ArgumentParser:
     parser.add_argument("--scene", type=path_argument, default=None,
                         help="scene folder with scene.json and the ground-truth mesh (default: the run's data)")
     parser.add_argument("--output", type=path_argument, default=None, help="default RUN/eval.json")
-    parser.add_argument("--mesh-resolution", type=int, default=128, help="marching-cubes grid of the run's mesh")
+    parser.add_argument("--mesh-resolution", type=int, default=ExportConfig.mesh_resolution,
+                        help="marching-cubes grid of the run's mesh (default %(default)s)")
     parser.add_argument("--image-scale", type=float, default=1.0, help="render held-out views at this scale")
     parser.add_argument("--max-views", type=int, default=None, help="evaluate at most this many held-out views")
     parser.add_argument("--texture", action="store_true",
                         help="also bake a textured mesh from the input views and score its ray-cast renders at the "
                         "held-out views (mesh_psnr, mesh_ssim, mesh_lpips)")
-    parser.add_argument("--texture-size", type=int, default=1024, help="texture side in texels (a power of two)")
-    parser.add_argument("--fusion", choices=("robust", "mean"), default="robust", help="per-texel fusion of the views")
+    parser.add_argument("--texture-size", type=int, default=ExportConfig.texture_size,
+                        help="texture side in texels, a power of two (default %(default)s)")
+    parser.add_argument("--fusion", choices=FUSIONS, default=ExportConfig.fusion,
+                        help="per-texel fusion of the views (default %(default)s)")
     parser.add_argument("--no-harmonise", action="store_true",
                         help="robust fusion: skip levelling each view's color gains against the others")
     parser.add_argument("--texture-supersample", type=int, default=1,

@@ -7,7 +7,14 @@ import sys
 
 from va_plugin.analysis.diagnostics import write_diagnostics
 from va_plugin.api import export_mesh, load_run, render
-from va_plugin.cli.common import ArgumentParser, add_mesh_file_options, add_quiet_option, friendly_errors, path_argument
+from va_plugin.cli.common import (
+    ArgumentParser,
+    add_export_options,
+    add_quiet_option,
+    export_config,
+    friendly_errors,
+    path_argument,
+)
 from va_plugin.errors import ConfigError
 from va_plugin.utils.memory import check_render_size
 
@@ -21,17 +28,8 @@ def build_parser() -> argparse.ArgumentParser:
                       help="mesh file: .ply, .obj or .glb (default RUN/mesh.ply; with --texture RUN/mesh.glb and "
                            "RUN/mesh.obj with its .mtl and .png)")
     mesh.add_argument("--overwrite", action="store_true", help="replace an existing --output file outside the run")
-    mesh.add_argument("--resolution", type=int, default=128,
-                      help="marching-cubes grid resolution (default %(default)s)")
     mesh.add_argument("--largest-component", action="store_true", help="keep only the largest connected part")
-    mesh.add_argument("--texture", action="store_true",
-                      help="UV-unwrap the mesh and bake a texture from the input views (.glb or .obj+.mtl+.png)")
-    mesh.add_argument("--texture-size", type=int, default=1024,
-                      help="texture side in texels, a power of two (default %(default)s)")
-    add_mesh_file_options(mesh, "--max-faces")  # --max-faces: the old name of --faces
-    mesh.add_argument("--fusion", choices=("robust", "mean"), default="robust",
-                      help="how disagreeing views are fused per texel: robust consensus or weighted mean "
-                      "(default %(default)s)")
+    add_export_options(mesh, "--texture", "--resolution", ("--max-faces",))  # --max-faces: the old name of --faces
     mesh.add_argument("--no-harmonise", action="store_true",
                       help="robust fusion: skip levelling each view's color gains against the others")
     mesh.add_argument("--use-inconsistency", action="store_true",
@@ -81,12 +79,12 @@ def export_mesh_command(args: argparse.Namespace) -> int:
     """``va-export mesh``: the mesh with vertex colors, or the textured mesh with ``--texture``."""
     output = None if args.output is None else args.output.resolve()
     plain = output if output is not None else args.load_dir / "mesh.ply"
-    files = export_mesh(args.load_dir, texture=args.texture, resolution=args.resolution,
-                        texture_size=args.texture_size, fusion=args.fusion, output=output if args.texture else None,
+    export = export_config(args, "--resolution")
+    files = export_mesh(args.load_dir, export=export, output=output if args.texture else None,
                         vertex_colors=None if args.texture else plain.resolve(),
-                        largest_component=args.largest_component, faces=args.faces, frame=args.frame,
-                        use_inconsistency=args.use_inconsistency, harmonise=False if args.no_harmonise else None,
-                        progress=not args.quiet, device=args.device, overwrite=args.overwrite)
+                        largest_component=args.largest_component, use_inconsistency=args.use_inconsistency,
+                        harmonise=False if args.no_harmonise else None, progress=not args.quiet, device=args.device,
+                        overwrite=args.overwrite)
     mesh = files.mesh
     frame = f" ({frame_words(files.frame)})" if files.frame else ""
     if not args.texture:
@@ -96,10 +94,10 @@ def export_mesh_command(args: argparse.Namespace) -> int:
     seen = report.seen / max(report.covered, 1)
     grid, source_faces = files.textured_source
     simplified = f" (simplified from {source_faces})" if len(textured.faces) < source_faces else ""
-    if grid != args.resolution:
-        simplified += f" (from a {grid}^3 grid: --faces asked for more than the {args.resolution}^3 mesh has)"
+    if grid != export.mesh_resolution:
+        simplified += f" (from a {grid}^3 grid: --faces asked for more than the {export.mesh_resolution}^3 mesh has)"
     print(f"textured mesh with {len(textured.vertices)} vertices, {len(textured.faces)} faces{simplified} "
-          f"and a {args.texture_size}^2 texture ({seen:.1%} of texels seen by an input view){frame} written to "
+          f"and a {export.texture_size}^2 texture ({seen:.1%} of texels seen by an input view){frame} written to "
           + ", ".join(str(p) for p in files.textured_paths))
     return 0
 

@@ -15,18 +15,20 @@ import argparse
 import sys
 from pathlib import Path
 
-from va_plugin.api import QUALITIES, RECOMMENDED_METHOD, SUMMARY_FILE, TrainingInterrupted, reconstruct
+from va_plugin.api import QUALITIES, RECOMMENDED_METHOD, TrainingInterrupted, reconstruct
 from va_plugin.cli.common import (
     EXIT_INTERRUPTED,
     ArgumentParser,
-    add_mesh_file_options,
+    add_export_options,
     add_quiet_option,
     check_output_dir,
+    export_config,
     friendly_errors,
     path_argument,
 )
 from va_plugin.cli.train import VIEWS_HELP, add_rig_options, parse_views
 from va_plugin.data.dataparsers import FORMATS
+from va_plugin.export.files import SUMMARY_FILE
 from va_plugin.registry import discover_methods
 
 
@@ -56,13 +58,7 @@ def build_parser(methods) -> argparse.ArgumentParser:
     parser.add_argument("--data-format", default="auto", choices=("auto", *FORMATS),
                         help="input format (default auto: detected from the input)")
     add_rig_options(parser)
-    parser.add_argument("--no-texture", action="store_true",
-                        help="vertex colors only (no mesh.glb or mesh.obj, no turntable)")
-    parser.add_argument("--texture-size", type=int, default=1024,
-                        help="texture side in texels, a power of two (default 1024)")
-    parser.add_argument("--mesh-resolution", type=int, default=128,
-                        help="marching-cubes grid of the mesh (default 128)")
-    add_mesh_file_options(parser)
+    add_export_options(parser)
     parser.add_argument("--turntable-frames", type=int, default=36,
                         help="frames of the turntable, 0 for none (default 36)")
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the method's)")
@@ -102,13 +98,11 @@ def main(argv: list[str] | None = None) -> int:
     try:
         result = reconstruct(args.input, args.out, method=args.method, quality=args.quality,
                              views=args.views if args.views is not None else "all", steps=args.steps,
-                             device=args.device, texture=not args.no_texture, seed=args.seed, masks=args.masks,
-                             data_format=args.data_format, elevation=args.elevation, fov=args.fov, rig=args.rig,
-                             resume=args.resume, overwrite=args.overwrite,
-                             texture_size=args.texture_size, mesh_resolution=args.mesh_resolution,
-                             turntable_frames=args.turntable_frames, faces=args.faces, frame=args.frame,
-                             show_progress=not args.quiet, on_message=None if args.quiet else say,
-                             overrides=list(args.overrides))
+                             device=args.device, seed=args.seed, masks=args.masks, data_format=args.data_format,
+                             elevation=args.elevation, fov=args.fov, rig=args.rig, resume=args.resume,
+                             overwrite=args.overwrite, export=export_config(args),
+                             turntable_frames=args.turntable_frames, show_progress=not args.quiet,
+                             on_message=None if args.quiet else say, overrides=list(args.overrides))
     except TrainingInterrupted as interrupt:
         print(f"{interrupt}; continue with the same command and --resume", file=sys.stderr)
         return EXIT_INTERRUPTED

@@ -130,8 +130,7 @@ def data_fingerprint(paths: Iterable[Path | None]) -> str:
 
 def data_paths(config: TrainerConfig) -> list[Path]:
     """The input files a config trains on: its data and, for generator inputs, a mask folder or image."""
-    parser = config.pipeline.datamanager.dataparser
-    return [Path(p) for p in (getattr(parser, "data", None), getattr(parser, "masks", None)) if p is not None]
+    return [Path(p) for p in config.pipeline.datamanager.dataparser.input_paths().values() if p is not None]
 
 
 def _flatten(data: Any, prefix: str = "") -> dict[str, Any]:

@@ -4,6 +4,7 @@ geometry metrics of its mesh against the ground truth."""
 from __future__ import annotations
 
 import json
+import numbers
 import time
 import warnings
 from pathlib import Path
@@ -12,12 +13,17 @@ from typing import Any
 import numpy as np
 import trimesh
 
-from va_plugin.errors import DataError
+from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
+from va_plugin.engine.loading import LoadedRun
+from va_plugin.errors import ConfigError, DataError
 from va_plugin.eval.geometry import geometry_metrics
 from va_plugin.eval.image import SSIM_WINDOW, psnr, ssim
 from va_plugin.eval.lpips import MIN_SIDE, LPIPSWeightsMissing, lpips, weight_paths
+from va_plugin.export.config import MIN_MESH_RESOLUTION, ExportConfig
 from va_plugin.export.mesh import extract_mesh
 from va_plugin.export.render import held_out_views, write_pair
+from va_plugin.utils.arguments import check_kind, check_kinds
+from va_plugin.utils.memory import check_mesh_resolution, check_render_size
 
 FSCORE_THRESHOLD = 0.02
 """F-score distance threshold in world units (objects fit a unit box): 2% of the object's size."""
@@ -82,7 +88,8 @@ def image_metrics(pipeline, image_scale: float = 1.0, max_views: int | None = No
     return out
 
 
-def evaluate_run(pipeline, state: dict[str, Any], scene_dir: Path | None = None, mesh_resolution: int = 128,
+def evaluate_run(pipeline, state: dict[str, Any], scene_dir: Path | None = None,
+                 mesh_resolution: int = ExportConfig.mesh_resolution,
                  image_scale: float = 1.0, max_views: int | None = None, n_samples: int = 100_000,
                  progress: bool = True, mesh: trimesh.Trimesh | None = None,
                  render_dir: Path | None = None) -> dict[str, Any]:
@@ -107,3 +114,37 @@ def evaluate_run(pipeline, state: dict[str, Any], scene_dir: Path | None = None,
                                            "ground_truth": str(gt_path)}})
     result["eval_seconds"] = round(time.perf_counter() - started, 2)
     return result
+
+
+def has_ground_truth(loaded: LoadedRun) -> bool:
+    """Whether the run's scene can be scored: a scene folder with held-out views or a true mesh (a
+    generator output's other views are generated too, so they are no ground truth)."""
+    scene = isinstance(loaded.config.pipeline.datamanager.dataparser, TransformsDataParserConfig)
+    return scene and (loaded.pipeline.datamanager.test is not None or ground_truth_mesh_path(loaded.pipeline)
+                      is not None)
+
+
+def check_evaluate_options(scene: str | Path | None, mesh_resolution: int, image_scale: float,
+                           max_views: int | None = None) -> None:
+    """Refuse evaluation options that cannot work, before anything is loaded (one line each)."""
+    check_kinds(mesh_resolution=(mesh_resolution, numbers.Integral), image_scale=(image_scale, numbers.Real))
+    check_kind("max_views", max_views, numbers.Integral, optional=True)
+    if mesh_resolution < MIN_MESH_RESOLUTION or image_scale <= 0:
+        raise ConfigError(f"--mesh-resolution must be at least {MIN_MESH_RESOLUTION} and --image-scale positive")
+    if max_views is not None and max_views < 1:
+        raise ConfigError(f"--max-views must be at least 1, got {max_views}")
+    if scene is not None and not (Path(scene) / "scene.json").is_file():
+        raise ConfigError(f"{scene} holds no scene.json")
+    check_mesh_resolution(mesh_resolution, "--mesh-resolution")
+
+
+def check_scorable(loaded: LoadedRun, scene: str | Path | None = None, image_scale: float | None = None) -> None:
+    """Refuse a run with nothing to score: no held-out views and no ground-truth mesh (of ``scene``, or of
+    the run's own data); with ``image_scale``, also held-out views too large to render at that scale."""
+    test = loaded.pipeline.datamanager.test
+    if test is None and ground_truth_mesh_path(loaded.pipeline, None if scene is None else Path(scene)) is None:
+        data = loaded.config.pipeline.datamanager.dataparser.data
+        raise DataError(f"nothing to score in {loaded.path}: its data {data} has no held-out views and no "
+                        "ground-truth mesh; pass --scene with a scene folder that has them")
+    if test is not None and image_scale is not None:
+        check_render_size(test.cameras.width, test.cameras.height, image_scale, "--image-scale")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import warnings
 from pathlib import Path
 
@@ -9,12 +10,17 @@ import numpy as np
 import torch
 import trimesh
 
-from va_plugin.errors import VAError
+from va_plugin.errors import ConfigError, VAError
+from va_plugin.export.config import FACES_MAX_RESOLUTION, ExportConfig
 from va_plugin.export.frame import check_frame, frame_applies, frame_transform, write_frame_record
 from va_plugin.fields.encodings.hash_kernel import denormals_flushed
 from va_plugin.models.base import Model
+from va_plugin.utils.memory import check_mesh_resolution
 
 MESH_FORMATS = (".ply", ".obj", ".glb")
+FACES_MARGIN = 1.15
+"""How far past the asked face count the finer grid of :func:`mesh_for_faces` aims (a surface's faces grow
+as the grid squared)."""
 
 
 @torch.no_grad()
@@ -94,8 +100,8 @@ def sample_distance_grid(fn, resolution: int, bound: float, radius: float, devic
     return values
 
 
-def extract_mesh(model: Model, resolution: int = 128, bound: float | None = None, with_color: bool = True,
-                 largest_component: bool = False) -> trimesh.Trimesh:
+def extract_mesh(model: Model, resolution: int = ExportConfig.mesh_resolution, bound: float | None = None,
+                 with_color: bool = True, largest_component: bool = False) -> trimesh.Trimesh:
     """The model's surface as a mesh: marching cubes of ``model.mesh_field`` inside the scene bound (a
     signed distance, ``model.mesh_field_lipschitz`` set, is evaluated only near its zero crossings), after
     the model's ``prepare_mesh_grid(values, spacing)`` and ``fill_mesh_cavities`` (``Model``'s defaults:
@@ -210,8 +216,25 @@ def write_mesh(mesh: trimesh.Trimesh, path: Path, frame: str = "upright") -> Pat
     return path
 
 
-def export_run_mesh(pipeline, path: Path, resolution: int = 128, largest_component: bool = False,
-                    frame: str = "upright") -> Path:
-    """Extract and write the mesh of a trained pipeline."""
-    mesh = extract_mesh(pipeline.model, resolution=resolution, largest_component=largest_component)
-    return write_mesh(mesh, path, frame)
+def mesh_for_faces(model: Model, mesh: trimesh.Trimesh, faces: int | None, resolution: int,
+                   largest_component: bool) -> tuple[trimesh.Trimesh, int]:
+    """The mesh to decimate to ``faces`` and its grid: ``mesh`` itself when it has at least that many faces;
+    otherwise the field extracted again on a grid fine enough to have them (faces grow as the grid
+    squared; at most :data:`~va_plugin.export.config.FACES_MAX_RESOLUTION`, and only where it fits in
+    memory). A mesh still short of ``faces`` is kept with a one-line warning."""
+    source, grid = mesh, resolution
+    if faces and len(mesh.faces) < faces:
+        finer = min(FACES_MAX_RESOLUTION, math.ceil(resolution * math.sqrt(faces / max(len(mesh.faces), 1))
+                                                    * FACES_MARGIN))
+        try:
+            check_mesh_resolution(finer)
+        except ConfigError:
+            finer = resolution
+        if finer > resolution:
+            fine = extract_mesh(model, resolution=finer, largest_component=largest_component, with_color=False)
+            if len(fine.faces) > len(mesh.faces):
+                source, grid = fine, finer
+    if faces and len(source.faces) < faces:
+        warnings.warn(f"--faces {faces}: the mesh has only {len(source.faces)} faces (on a {grid}^3 grid), so it "
+                      "is textured with those (simplification removes faces, it adds none)", stacklevel=3)
+    return source, grid

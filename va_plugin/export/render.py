@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import numbers
 from collections.abc import Iterator
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -13,13 +14,27 @@ import torch
 from va_plugin.cameras import Cameras
 from va_plugin.data.images import write_image
 from va_plugin.data.rigs import orbit_cameras
+from va_plugin.errors import ConfigError
 from va_plugin.fields.encodings.hash_kernel import denormals_flushed
 from va_plugin.raycast import MeshRenderer
 from va_plugin.rays import RayBundle
+from va_plugin.utils.arguments import check_kind, check_kinds
+from va_plugin.utils.memory import check_image_side
 from va_plugin.utils.progress import progress_bar
 
 if TYPE_CHECKING:
     import trimesh
+
+
+def check_render_options(scale: float, max_views: int | None, frames: int, turntable_resolution: int,
+                         progress: bool) -> None:
+    """Refuse render options that cannot work, before the run is loaded (one line each)."""
+    check_kinds(scale=(scale, numbers.Real), frames=(frames, numbers.Integral),
+                turntable_resolution=(turntable_resolution, numbers.Integral), progress=(progress, bool))
+    check_kind("max_views", max_views, numbers.Integral, optional=True)
+    if scale <= 0 or frames < 1 or turntable_resolution < 2:
+        raise ConfigError("--scale must be positive, --frames at least 1 and --turntable-resolution at least 2")
+    check_image_side(turntable_resolution, "--turntable-resolution")
 
 
 def render_view(model, cameras: Cameras, index: int, as_view: int = -1, keys=None):

@@ -20,6 +20,7 @@ import trimesh
 from va_plugin.errors import VAError
 from va_plugin.export.atlas import MAX_TEXTURE_FACES, dilate, rasterize_uv, simplify_for_texture, unwrap
 from va_plugin.export.baked import BakeReport, TexturedMesh
+from va_plugin.export.config import ExportConfig, check_texture_size
 from va_plugin.export.fill import fill_from_seen
 from va_plugin.export.frame import check_frame
 from va_plugin.export.fusion import FUSIONS, apply_harmonisation, fuse, harmonise
@@ -29,24 +30,13 @@ from va_plugin.export.writing import bake_picture, check_texture_output, write_b
 from va_plugin.raycast import smooth_vertex_normals
 from va_plugin.utils.memory import check_texture_memory, small_numpy_pages
 
-MIN_TEXTURE_SIZE = 16
-MAX_TEXTURE_SIZE = 8192
-"""Largest texture side accepted (far more texels than any input view has pixels)."""
-
-
-def check_texture_size(size: int) -> None:
-    """Refuse texture sizes that are not a power of two or outside [16, 8192]."""
-    if size < MIN_TEXTURE_SIZE or size > MAX_TEXTURE_SIZE or size & (size - 1):
-        raise VAError(f"--texture-size must be a power of two from {MIN_TEXTURE_SIZE} to {MAX_TEXTURE_SIZE}, "
-                      f"got {size}")
-
-
 Fallback = Callable[[np.ndarray, np.ndarray], np.ndarray]
 """Colors ``[m, 3]`` of surface points ``[m, 3]`` with normals ``[m, 3]``."""
 
 
 @small_numpy_pages()
-def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = 1024, fusion: str = "robust",
+def bake_texture(mesh: trimesh.Trimesh, views: Views, size: int = ExportConfig.texture_size,
+                 fusion: str = ExportConfig.fusion,
                  fallback: Fallback | None = None, progress: bool = False, atlas=None,
                  harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES,
                  fill_unseen: bool = True):
@@ -129,31 +119,31 @@ def run_views(pipeline, inconsistency: bool = False, progress: bool = False, opa
     return Views(dm.cameras.to(torch.device("cpu")), dm.images.cpu().numpy().astype(np.float32), masks, maps)
 
 
-def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Path], size: int = 1024,
-                     fusion: str = "robust", inconsistency: bool = False, progress: bool = True,
-                     harmonise_views: bool | None = None, max_faces: int | None = MAX_TEXTURE_FACES,
-                     frame: str = "upright", record: dict | None = None):
-    """Bake ``mesh`` from a loaded run's training views, write it to
-    ``output`` (GLB or OBJ+MTL+PNG; several paths: one bake written in each format) in ``frame`` with
-    ``<stem>_frame.json``, and ``<stem>_bake.png`` (atlas | per-view weight maps) and ``<stem>_bake.json``
-    beside the first (with ``record`` added to the JSON); returns ``(TexturedMesh, BakeReport, written
-    paths)``. The TexturedMesh stays in the training frame."""
+def texture_run_mesh(pipeline, mesh: trimesh.Trimesh, output: Path | Sequence[Path], export: ExportConfig,
+                     inconsistency: bool = False, progress: bool = True, harmonise_views: bool | None = None,
+                     record: dict | None = None):
+    """Bake ``mesh`` from a loaded run's training views (``export``: the texture size, face count, fusion and
+    frame), write it to ``output`` (GLB or OBJ+MTL+PNG; several paths: one bake written in each format) in
+    the frame with ``<stem>_frame.json``, and ``<stem>_bake.png`` (atlas | per-view weight maps) and
+    ``<stem>_bake.json`` beside the first (with ``record`` added to the JSON); returns ``(TexturedMesh,
+    BakeReport, written paths)``. The TexturedMesh stays in the training frame."""
     outputs = [Path(output)] if isinstance(output, (str, Path)) else [Path(o) for o in output]
     for path in outputs:
         check_texture_output(path)
-    check_frame(frame)
+    check_frame(export.frame)
     views = run_views(pipeline, inconsistency=inconsistency, progress=progress)
-    textured, report = bake_texture(mesh, views, size=size, fusion=fusion, progress=progress,
-                                    harmonise_views=harmonise_views, max_faces=max_faces)
+    textured, report = bake_texture(mesh, views, size=export.texture_size, fusion=export.fusion, progress=progress,
+                                    harmonise_views=harmonise_views, max_faces=export.texture_faces)
     written: list[Path] = []
     # one thread per file: most of a write is the texture's PNG encoding, which runs outside the GIL
     with ThreadPoolExecutor(max_workers=len(outputs)) as pool:
-        for files in list(pool.map(lambda path: write_textured_mesh(textured, path, frame), outputs)):
+        for files in list(pool.map(lambda path: write_textured_mesh(textured, path, export.frame), outputs)):
             written.extend(p for p in files if p not in written)
     first = outputs[0]
     written.append(bake_picture(textured, report, first.with_name(first.stem + "_bake.png")))
     written.append(write_bake_record(report, first.with_name(first.stem + "_bake.json"),
-                                     {"texture_size": size, "fusion": fusion, "inconsistency_maps": inconsistency,
-                                      "faces_extracted": len(mesh.faces), "faces_textured": len(textured.faces),
-                                      "max_faces": max_faces or 0, "frame": frame, **(record or {})}))
+                                     {"texture_size": export.texture_size, "fusion": export.fusion,
+                                      "inconsistency_maps": inconsistency, "faces_extracted": len(mesh.faces),
+                                      "faces_textured": len(textured.faces), "max_faces": export.texture_faces,
+                                      "frame": export.frame, **(record or {})}))
     return textured, report, written

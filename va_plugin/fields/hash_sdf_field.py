@@ -118,6 +118,7 @@ class HashSDFField(Field):
 
     # -- geometry -------------------------------------------------------------------------------
     def _inputs(self, positions: torch.Tensor) -> torch.Tensor:
+        """The SDF network's input ``[..., 3 + L * F]``: ``positions [..., 3]`` and their grid encoding."""
         return torch.cat([positions, self.encoding(positions)], dim=-1)
 
     def geometry(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
@@ -159,6 +160,8 @@ class HashSDFField(Field):
         return out, grad_in[:, :3] + pullback(grad_in[:, 3:])
 
     def _finite_difference(self, positions: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        """SDF ``[..., 1]``, geometry feature ``[..., G]`` and the SDF's gradient ``[..., 3]`` from four
+        probes on a tetrahedron around each of ``positions [..., 3]``."""
         step = self.finite_difference_step()
         vertices = positions.new_tensor(_TETRAHEDRON)  # [4, 3]
         sdf, features = self.geometry(positions)

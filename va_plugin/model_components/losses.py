@@ -8,7 +8,8 @@ import torch
 
 
 def rgb_loss(pred: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
-    """Photometric loss: the mean squared error (the paper's eq. 13)."""
+    """Photometric loss: the mean squared error (the paper's eq. 13) between ``pred`` and ``target``, both
+    ``[n_rays, 3]``; a scalar."""
     diff = pred - target
     return (diff * diff).mean()
 

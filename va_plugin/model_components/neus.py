@@ -22,6 +22,7 @@ class SingleVariance(nn.Module):
         self.variance = nn.Parameter(torch.tensor(float(init)))
 
     def inv_s(self) -> torch.Tensor:
+        """The sharpness ``inv_s = exp(10 v)``, a scalar tensor clamped to [INV_S_MIN, INV_S_MAX]."""
         log_bound = math.log(INV_S_MAX)
         return torch.exp((10.0 * self.variance).clamp(-log_bound, log_bound)).clamp(INV_S_MIN, INV_S_MAX)
 

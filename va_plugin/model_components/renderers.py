@@ -17,7 +17,8 @@ def weights_from_alpha(alpha: torch.Tensor) -> torch.Tensor:
 
 
 def alpha_from_density(density: torch.Tensor, deltas: torch.Tensor) -> torch.Tensor:
-    """``alpha = 1 - exp(-sigma * delta)``, with the exponent clamped so it never overflows."""
+    """``alpha = 1 - exp(-sigma * delta)`` ``[n_rays, n_samples]`` from ``density`` and ``deltas`` (section
+    lengths), both ``[n_rays, n_samples]``, with the exponent clamped so it never overflows."""
     return 1.0 - torch.exp(-(density * deltas).clamp(0.0, 80.0))
 
 

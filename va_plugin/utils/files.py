@@ -4,10 +4,11 @@ from __future__ import annotations
 
 import contextlib
 import errno
+import json
 import os
 from collections.abc import Callable
 from pathlib import Path
-from typing import BinaryIO
+from typing import Any, BinaryIO
 
 from va_plugin.errors import OutputError
 
@@ -41,6 +42,11 @@ def write_atomic(path: Path, text: str) -> Path:
     """Write ``text`` (UTF-8) to a synced temporary file beside ``path``, then rename it into place (see
     :func:`replace_atomic`)."""
     return replace_atomic(path, lambda handle: handle.write(text.encode("utf-8")))
+
+
+def write_json(path: Path, data: dict[str, Any]) -> Path:
+    """Write JSON whole or not at all (a killed call leaves no half-written file)."""
+    return write_atomic(path, json.dumps(data, indent=2))
 
 
 def write_failure(exc: OSError, path: Path | None = None) -> str:

@@ -21,6 +21,9 @@ import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
+EXIT_INTERRUPTED = 130
+"""Exit status of a command stopped by Ctrl-C or SIGTERM (128 + SIGINT), after it saved what it had."""
+
 
 @contextlib.contextmanager
 def interrupt_deferred() -> Iterator[None]:

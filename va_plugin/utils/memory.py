@@ -63,8 +63,10 @@ def small_numpy_pages():
     huge page on first touch (``defrag`` of ``madvise``, common), that fault stalls for far longer than the
     ordinary pages of the same array take; the values are the same. The earlier setting comes back at
     the end. Nothing changes where numpy has no such setting or ``NUMPY_MADVISE_HUGEPAGE`` chose one."""
-    toggle = getattr(getattr(np, "_core", None), "multiarray", None)
-    toggle = getattr(toggle, "_set_madvise_hugepage", None)
+    try:  # a private numpy function (numpy 2's module path), absent from some builds
+        toggle = np._core.multiarray._set_madvise_hugepage
+    except AttributeError:
+        toggle = None
     if toggle is None or os.environ.get("NUMPY_MADVISE_HUGEPAGE"):
         yield
         return

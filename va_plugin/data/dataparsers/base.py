@@ -44,6 +44,11 @@ class DataParserConfig(InstantiateConfig):
     image_scale: float = 1.0
     """Resize every image by this factor on load (e.g. 0.5 to train at half resolution)."""
 
+    def input_paths(self) -> dict[str, Path | None]:
+        """The options that name input files, by name: what a run reads (its data; generators: their mask
+        folder or image too); None where not given."""
+        return {"data": self.data}
+
 
 class DataParser:
     """Reads a scene into :class:`DataparserOutputs` for a split ("train" or "test")."""

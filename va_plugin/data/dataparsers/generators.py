@@ -77,6 +77,10 @@ class GeneratorDataParserConfig(DataParserConfig):
             raise ConfigError(f"unknown {prefix}normalize mode {self.normalize!r}; use one of: "
                               f"{', '.join(NORMALIZE_MODES)}")
 
+    def input_paths(self) -> dict[str, Path | None]:
+        """The data and the mask folder or image."""
+        return {**super().input_paths(), "masks": self.masks}
+
 
 @dataclass
 class _Views:
