@@ -14,7 +14,7 @@ from va_plugin.cameras import opengl_to_opencv
 from va_plugin.cli import train as train_cli
 from va_plugin.data import rigs
 from va_plugin.data.dataparsers import FORMATS, detect_format, resolve_dataparser
-from va_plugin.data.dataparsers.generators import SyncDreamerDataParserConfig
+from va_plugin.data.dataparsers.rigged import SyncDreamerDataParserConfig
 from va_plugin.data.dataparsers.transforms import TransformsDataParserConfig
 from va_plugin.data.images import read_image, write_image
 from va_plugin.errors import DataError
