@@ -5,7 +5,8 @@ Each arm trains every object's 16-view scene of ``run_all_views.py`` (level 0 an
 views off the rig) once per seed. The seed is the ray sampler's (``pipeline.datamanager.seed``), the one the
 earlier reseeds moved. Each run's row is kept in ``--store`` (``rows.jsonl``, keyed by arm, object, level,
 views and seed), so a later variant reuses the base's rows; a stored arm run again with another method or
-other overrides is refused. Run folders and scenes go to ``--work``.
+other overrides or under other defaults of its method is refused. Run folders (one folder per config
+fingerprint, so a changed default never resumes an old run) and scenes go to ``--work``.
 
 The report, per level, over the objects both arms have:
 - each arm's mean (objects first averaged over their seeds) and its per-object seed sd (pooled over objects);
@@ -84,13 +85,38 @@ def load_rows(path: Path) -> dict[str, dict[str, Any]]:
     return rows
 
 
-def check_arm(arm: Arm, rows: dict[str, dict[str, Any]]) -> None:
-    """Refuse an arm whose stored rows were made with another method or other overrides."""
+def check_arm(arm: Arm, rows: dict[str, dict[str, Any]], trains: str | None = None) -> None:
+    """Refuse an arm whose stored rows were made with another method or other overrides, or (``trains``: the
+    arm's :func:`fingerprint` now) under other defaults of its method."""
     for row in rows.values():
-        if row.get("arm") == arm.name and (row.get("method"), tuple(row.get("arm_overrides", ()))) != \
-                (arm.method, arm.overrides):
+        if row.get("arm") != arm.name:
+            continue
+        if (row.get("method"), tuple(row.get("arm_overrides", ()))) != (arm.method, arm.overrides):
             raise LookupError(f"arm {arm.name!r} is stored as {row.get('method')} {row.get('arm_overrides', [])}; "
                               f"give the new one another name")
+        if trains is not None and row.get("trains", trains) != trains:
+            raise LookupError(f"arm {arm.name!r} is stored with other defaults of {arm.method} (commit "
+                              f"{row.get('commit', '?')}); its new runs would not be comparable: give them "
+                              "another name, or pin the old defaults with overrides")
+
+
+def fingerprint(arm: Arm) -> str:
+    """What an arm trains, as a short hash of its method's config with the arm's overrides (the seed, the
+    data and the output folder left out): rows of one arm name under changed defaults differ here."""
+    import hashlib
+
+    from va_plugin.config import apply_override, to_dict
+    from va_plugin.registry import get_method
+
+    config = get_method(arm.method).make_config()
+    for override in arm.overrides:
+        apply_override(config, override)
+    flat = to_dict(config)
+    for key in ("output_dir", "seed", "progress", "device", "num_threads"):
+        flat.pop(key, None)
+    flat["pipeline"]["datamanager"].pop("seed", None)
+    flat["pipeline"]["datamanager"]["dataparser"].pop("data", None)
+    return hashlib.sha256(json.dumps(flat, sort_keys=True, default=str).encode()).hexdigest()[:12]
 
 
 def commit() -> str:
@@ -104,7 +130,7 @@ def commit() -> str:
 def jobs_for(arm: Arm, names: list[str], levels: list[int], seeds: list[int], data_root: Path, work: Path,
              done: dict[str, dict[str, Any]]) -> list[dict[str, Any]]:
     """The runs ``arm`` still lacks, each with its scene built."""
-    jobs = []
+    jobs, trains = [], fingerprint(arm)
     for level in levels:
         for seed in seeds:
             for name in names:
@@ -112,11 +138,11 @@ def jobs_for(arm: Arm, names: list[str], levels: list[int], seeds: list[int], da
                 if key in done:
                     continue
                 scene = run_all_views.build(work / "scenes", data_root, name, VIEWS, level)
-                jobs.append({"key": key, "object": name, "views": VIEWS, "level": level, "steps": 0,
+                jobs.append({"key": key, "object": name, "views": VIEWS, "level": level, "steps": 0, "trains": trains,
                              "variant": arm.name, "arm": arm.name, "method": arm.method,
                              "arm_overrides": list(arm.overrides),
                              "overrides": [*arm.overrides, f"pipeline.datamanager.seed={seed}"],
-                             "seed": seed, "scene": str(scene), "run_dir": str(work / "runs" / key),
+                             "seed": seed, "scene": str(scene), "run_dir": str(work / "runs" / trains / key),
                              "commit": commit()})
     return jobs
 
@@ -253,6 +279,7 @@ def main(argv: list[str] | None = None) -> int:
             for arm in (base, variant):  # an unknown method or a mistyped key fails here, not in the workers
                 for override in arm.overrides:
                     apply_override(get_method(arm.method).make_config(), override)
+                check_arm(arm, done, fingerprint(arm))
             names = args.objects.split(",") if args.objects else gso.list_objects(args.data_root)
             args.store.mkdir(parents=True, exist_ok=True)
             jobs = [j for arm in (base, variant) for j in jobs_for(arm, names, levels, seeds, args.data_root,

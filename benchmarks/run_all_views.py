@@ -98,7 +98,7 @@ def train_and_score(job: dict[str, Any]) -> dict[str, Any]:
     train_run(config, resume=True)
     scores, state = score(job["run_dir"])
     wall = time.perf_counter() - started
-    passed = ("key", "object", "views", "level", "arm", "arm_overrides", "method", "seed", "commit")
+    passed = ("key", "object", "views", "level", "arm", "arm_overrides", "method", "seed", "commit", "trains")
     return {**{k: job[k] for k in passed if k in job},
             "variant": job.get("variant", ""), **scores, "steps": int(state["step"]),
             "train_seconds": round(float(state["train_seconds"]), 1), "wall_seconds": round(wall, 1)}

@@ -86,3 +86,16 @@ def test_a_stored_arm_is_refused_with_other_overrides_and_no_rows_is_one_line(ju
     (folder / "rows.jsonl").write_text("{not json\n")
     assert judge.main(["--store", str(folder), "--report-only"]) == 2
     assert "line 1 is not a row" in capsys.readouterr().err
+
+
+def test_an_arm_stored_under_other_defaults_is_refused_before_any_run(judge, tmp_path, capsys):
+    assert judge.fingerprint(judge.parse_arm("neus")) == judge.fingerprint(judge.parse_arm("x=neus"))
+    changed = judge.fingerprint(judge.parse_arm("x=neus average_fraction=0"))
+    assert changed != judge.fingerprint(judge.parse_arm("neus"))
+    folder = tmp_path / "store"
+    folder.mkdir()
+    stale = dict(row("neus", "o1", 42, 20.0, 0.01), trains=changed, commit="abc1234")
+    (folder / "rows.jsonl").write_text(json.dumps(stale) + "\n")
+    assert judge.main(["--base", "neus", "--variant", "ema=neus x.y=1", "--store", str(folder),
+                       "--objects", "o1", "--data-root", str(tmp_path)]) == 2
+    assert "arm 'neus' is stored with other defaults of neus (commit abc1234)" in capsys.readouterr().err
