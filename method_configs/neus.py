@@ -35,6 +35,8 @@ def neus_config() -> TrainerConfig:
         max_steps=2000,
         # the schedules end at 2000 steps whatever the budget: a longer run continues at the final values
         schedule_steps=2000,
+        # the run ends with the mean of its last 10% of steps' weights, not the last step's noisy draw
+        average_fraction=0.1,
     )
 
 

@@ -111,6 +111,39 @@ def test_first_steps_losses_match_our_trainer(method, strip, tmp_path):
     assert len(got) == steps and all(got) and largest_difference(expected, got) <= 1e-5, (expected, got)
 
 
+def test_averaged_weights_match_our_trainer(strip, tmp_path):
+    """With ``average_fraction`` both trainers end on the same mean of the last steps' weights."""
+    from va_plugin.data.dataparsers import resolve_dataparser
+    from va_plugin.nerfstudio.compare import ns_train
+    from va_plugin.nerfstudio.methods import nerfstudio_config
+
+    steps = 4
+    ours = tiny_config("neus", strip, tmp_path / "ours", steps=steps)
+    ours.pipeline.datamanager.dataparser = resolve_dataparser(strip)
+    ours.average_fraction = 0.5
+    trainer = ours.setup()
+    trainer.train()
+    theirs = nerfstudio_config("va-plugin-neus", "neus")
+    theirs.pipeline.schedule_steps, theirs.pipeline.average_fraction = ours.schedule_steps, 0.5
+    theirs.output_dir, theirs.timestamp, theirs.vis = tmp_path / "ns", "run", "tensorboard"
+    theirs.machine.device_type = "cpu"
+    theirs.pipeline.datamanager.dataparser.data = strip
+    theirs.pipeline.datamanager.rays_per_batch = ours.pipeline.datamanager.rays_per_batch
+    theirs.pipeline.model.va = ours.pipeline.model
+    _, ns_trainer = ns_train(theirs, steps)
+    expected, got = trainer.model.state_dict(), ns_trainer.pipeline.va.model.state_dict()
+    assert trainer.average is not None and trainer.average.count == 2
+    for name, value in expected.items():
+        if value.is_floating_point():
+            assert torch.allclose(got[name], value, atol=1e-5), name
+    last = tiny_config("neus", strip, tmp_path / "last", steps=steps)  # the average differs from the last step
+    last.pipeline.datamanager.dataparser = resolve_dataparser(strip)
+    plain = last.setup()
+    plain.train()
+    assert any(not torch.allclose(plain.model.state_dict()[n], v, atol=1e-5) for n, v in expected.items()
+               if v.is_floating_point())
+
+
 def test_missing_input_is_one_error_line(tmp_path):
     """A bad input stops ns-train with our one-line error and exit status 2, not a traceback."""
     ns_train = Path(sys.executable).parent / "ns-train"

@@ -23,6 +23,11 @@ def va_train_losses(config: TrainerConfig, steps: int) -> list[dict[str, float]]
 def ns_train_losses(config: Any, steps: int) -> list[dict[str, float]]:
     """Each step's loss terms under nerfstudio's trainer, set up as ns-train sets it up (``config``: a
     nerfstudio ``TrainerConfig``; its budget becomes ``steps``)."""
+    return ns_train(config, steps)[0]
+
+
+def ns_train(config: Any, steps: int) -> tuple[list[dict[str, float]], Any]:
+    """:func:`ns_train_losses` and the trained nerfstudio trainer (its ``pipeline.va`` is our pipeline)."""
     config.max_num_iterations = config.pipeline.max_steps = steps
     _set_random_seed(config.machine.seed)
     trainer = config.setup(local_rank=0, world_size=1)
@@ -37,7 +42,7 @@ def ns_train_losses(config: Any, steps: int) -> list[dict[str, float]]:
 
     trainer.pipeline.get_train_loss_dict = recorded
     trainer.train()
-    return losses
+    return losses, trainer
 
 
 def largest_difference(ours: list[dict[str, float]], theirs: list[dict[str, float]]) -> float:

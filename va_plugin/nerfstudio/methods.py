@@ -77,7 +77,8 @@ def nerfstudio_config(name: str, ours: str) -> VATrainerConfig:
         viewer=ViewerConfig(websocket_host="127.0.0.1", num_rays_per_chunk=config.pipeline.model.eval_chunk),
         vis="viewer",
         pipeline=VAPipelineConfig(datamanager=datamanager, model=VAModelConfig(va=config.pipeline.model),
-                                  scheduler=config.scheduler, schedule_steps=config.schedule_steps),
+                                  scheduler=config.scheduler, schedule_steps=config.schedule_steps,
+                                  average_fraction=config.average_fraction),
         optimizers=optimizers,
     )
 

@@ -25,10 +25,11 @@ from nerfstudio.utils.rich_utils import CONSOLE
 
 from va_plugin.cli.common import EXIT_USER_ERROR
 from va_plugin.config import to_dict
+from va_plugin.engine.averaging import WeightAverage
 from va_plugin.engine.metrics_log import append_record
 from va_plugin.engine.optimizers import OptimizerConfig, SchedulerConfig
 from va_plugin.engine.trainer import CHECKPOINT_DIR, TrainerConfig, atomic_save, list_checkpoints
-from va_plugin.errors import VAError
+from va_plugin.errors import ConfigError, VAError
 from va_plugin.fields.encodings.hash_kernel import denormals_flushed
 from va_plugin.nerfstudio.datamanager import VAGeneratorDataManagerConfig
 from va_plugin.nerfstudio.model import VAModelConfig
@@ -54,6 +55,9 @@ class VAPipelineConfig(InstantiateConfig):
     trainer's --max-num-iterations. A longer budget trains on at the schedules' final values."""
     max_steps: tyro.conf.Suppress[int] = 0
     """The trainer's --max-num-iterations (copied by VATrainerConfig)."""
+    average_fraction: float = 0.0
+    """Share of the steps, at the end of the run, over which the weights are averaged: the run ends with the
+    mean of the parameters after each of those steps (0: the last step's), as va-train's option."""
 
     def resolved_schedule_steps(self) -> int:
         """``min(max_steps, schedule_steps)``, or ``max_steps`` when ``schedule_steps`` is 0 (as va-train)."""
@@ -82,6 +86,8 @@ class VAPipeline(Pipeline):
 
     def _build(self, device: torch.device, grad_scaler: Any) -> None:
         config, test_mode, world_size, local_rank = self.config, self.test_mode, self.world_size, self.local_rank
+        if not 0.0 <= config.average_fraction < 1.0:
+            raise ConfigError(f"--pipeline.average-fraction must be in [0, 1), got {config.average_fraction}")
         self.schedule_steps = config.resolved_schedule_steps()
         self.datamanager = config.datamanager.setup(device=device, test_mode=test_mode, world_size=world_size,
                                                     local_rank=local_rank)
@@ -141,10 +147,20 @@ class VAPipeline(Pipeline):
         def save_last(step: int) -> None:
             self.save_va_checkpoint(trainer, step)
 
+        max_steps = trainer.config.max_num_iterations
+        averaged = round(self.config.average_fraction * max_steps)
+        average = WeightAverage(list(self.va.model.parameters()), max_steps - averaged) if averaged else None
+
+        def average_weights(step: int) -> None:  # after the optimizer step of 0-based ``step``
+            average.update(step + 1)
+            if step + 1 == max_steps and average.apply():
+                self.va.model.restore_step(step)  # the step schedules hold for the averaged weights too
+
         return [TrainingCallback([BEFORE], flush_on),
                 *self.model.get_training_callbacks(training_callback_attributes),
                 TrainingCallback([BEFORE], learning_rates),
                 TrainingCallback([AFTER], flush_off),
+                *([TrainingCallback([AFTER], average_weights)] if average is not None else []),
                 TrainingCallback([AFTER], save),
                 TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN], save_last)]
 
@@ -157,7 +173,8 @@ class VAPipeline(Pipeline):
                       for name, entry in ns.optimizers.items()}
         return TrainerConfig(method_name=ns.method_name, pipeline=self.va.config, optimizers=optimizers,
                              scheduler=self.config.scheduler, max_steps=ns.max_num_iterations,
-                             schedule_steps=self.schedule_steps, seed=ns.machine.seed,
+                             schedule_steps=self.schedule_steps, average_fraction=self.config.average_fraction,
+                             seed=ns.machine.seed,
                              output_dir=Path(trainer.base_dir), checkpoint_every=max(ns.steps_per_save, 1))
 
     def save_va_checkpoint(self, trainer: Any, step: int) -> Path:
