@@ -40,15 +40,23 @@ def _float_params(trainer):
 
 def test_a_run_ends_with_the_mean_of_its_last_steps_and_resumes_bitwise(tiny_scene, tmp_path):
     options = dict(steps=6, checkpoint_every=2, average_fraction=0.5)  # the last 3 steps
-    seen = []
+    seen, after = [], []
     full = tiny_config("neus", tiny_scene, tmp_path / "full", **options).setup()
-    full.callbacks.append(TrainingCallback(lambda step, trainer: seen.append(_float_params(full)), AFTER_STEP))
+    update = full.average.update
+
+    def recording(done):  # called after each optimizer step: seen[k] are the weights after step k + 1
+        seen.append(_float_params(full))
+        update(done)
+
+    full.average.update = recording
+    full.callbacks.append(TrainingCallback(lambda step, trainer: after.append(_float_params(full)), AFTER_STEP))
     full.train()
-    # AFTER_STEP runs inside the step, after the optimizer: seen[k] are the weights after step k + 1
     expected = [torch.stack([s[i] for s in seen[3:]]).mean(0) for i in range(len(seen[0]))]
     final = _float_params(full)
-    assert all(torch.allclose(f, e, atol=1e-6) for f, e in zip(final, expected))
+    assert len(seen) == 6 and all(torch.allclose(f, e, atol=1e-6) for f, e in zip(final, expected))
     assert not all(torch.equal(f, s) for f, s in zip(final, seen[-1]))  # not the last step's weights
+    # the last step's after-step callbacks (the diagnostics pictures) already see the averaged weights
+    assert all(torch.equal(f, a) for f, a in zip(final, after[-1]))
 
     def interrupt(step, trainer):
         if step == 5:

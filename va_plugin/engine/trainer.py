@@ -538,6 +538,17 @@ class Trainer:
         record.update(metrics)
         return record
 
+    def _average(self, done: int) -> None:
+        """After the optimizer step that makes ``done`` steps: the weights join their running mean, which
+        replaces them after the last step (before the after-step callbacks, so that the pictures written
+        there show the weights the run ends with)."""
+        if self.average is None:
+            return
+        self.average.update(done)
+        if done == self.config.max_steps and self.average.apply():
+            # the step schedules (e.g. the inv_s floor) hold for the averaged weights too
+            self.model.restore_step(done - 1)
+
     def run_step(self) -> tuple[dict[str, Any], float]:
         """One training step with its callbacks (no logging, evaluation or checkpoint): its record and
         its wall seconds, which are added to ``train_seconds``."""
@@ -548,6 +559,7 @@ class Trainer:
         with denormals_flushed(self.device.type == "cpu"):
             self._run_callbacks(BEFORE_STEP)
             record = self._step()
+            self._average(self.step + 1)
             self._run_callbacks(AFTER_STEP)
         if self._signal_plan:
             self._send_planned_signal("end")
@@ -602,11 +614,6 @@ class Trainer:
             self._stop_if_asked(poll)
             self._mid_step = True
             record, elapsed = self.run_step()
-            if self.average is not None:
-                self.average.update(self.step)
-                if self.step == cfg.max_steps and self.average.apply():
-                    # the step schedules (e.g. the inv_s floor) hold for the averaged weights too
-                    self.model.restore_step(self.step - 1)
             recent = (recent + [elapsed])[-20:]
             record.update(self.model.diagnostics())
             record.update({"step": self.step, "train_seconds": round(self.train_seconds, 3),

@@ -156,11 +156,12 @@ class VAPipeline(Pipeline):
             if step + 1 == max_steps and average.apply():
                 self.va.model.restore_step(step)  # the step schedules hold for the averaged weights too
 
+        # after a step the average comes first: the model's after-step callbacks see the weights it ends with
         return [TrainingCallback([BEFORE], flush_on),
+                *([TrainingCallback([AFTER], average_weights)] if average is not None else []),
                 *self.model.get_training_callbacks(training_callback_attributes),
                 TrainingCallback([BEFORE], learning_rates),
                 TrainingCallback([AFTER], flush_off),
-                *([TrainingCallback([AFTER], average_weights)] if average is not None else []),
                 TrainingCallback([AFTER], save),
                 TrainingCallback([TrainingCallbackLocation.AFTER_TRAIN], save_last)]
 
