@@ -37,6 +37,13 @@ class WeightAverage:
         for mean, param in zip(self.mean, self.params):
             mean.lerp_(param.detach(), weight)  # mean += (param - mean) / count
 
+    def after_step(self, done: int, last: int, model: Any) -> None:
+        """After the optimizer step that makes ``done`` steps: :meth:`update`, and after step ``last`` the
+        mean replaces the weights, with ``model``'s step schedules (e.g. the inv_s floor) set for them."""
+        self.update(done)
+        if done == last and self.apply():
+            model.restore_step(done - 1)
+
     @torch.no_grad()
     def apply(self) -> bool:
         """Copy the mean into the parameters; False (nothing changed) before any step was averaged."""

@@ -542,12 +542,8 @@ class Trainer:
         """After the optimizer step that makes ``done`` steps: the weights join their running mean, which
         replaces them after the last step (before the after-step callbacks, so that the pictures written
         there show the weights the run ends with)."""
-        if self.average is None:
-            return
-        self.average.update(done)
-        if done == self.config.max_steps and self.average.apply():
-            # the step schedules (e.g. the inv_s floor) hold for the averaged weights too
-            self.model.restore_step(done - 1)
+        if self.average is not None:
+            self.average.after_step(done, self.config.max_steps, self.model)
 
     def run_step(self) -> tuple[dict[str, Any], float]:
         """One training step with its callbacks (no logging, evaluation or checkpoint): its record and

@@ -152,9 +152,7 @@ class VAPipeline(Pipeline):
         average = WeightAverage(list(self.va.model.parameters()), max_steps - averaged) if averaged else None
 
         def average_weights(step: int) -> None:  # after the optimizer step of 0-based ``step``
-            average.update(step + 1)
-            if step + 1 == max_steps and average.apply():
-                self.va.model.restore_step(step)  # the step schedules hold for the averaged weights too
+            average.after_step(step + 1, max_steps, self.va.model)
 
         # after a step the average comes first: the model's after-step callbacks see the weights it ends with
         return [TrainingCallback([BEFORE], flush_on),
