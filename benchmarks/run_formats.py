@@ -29,16 +29,25 @@ REPO = Path(__file__).resolve().parents[1]
 DEFAULT_FORMATS = "hunyuan3d-std,hunyuan3d-lite,mvadapter,sv3d,era3d,crm,wonder3dpp-ortho,four-view-grid"
 
 
+def split_format(fmt: str) -> tuple[str, int | str]:
+    """``syncdreamer@4`` -> (``syncdreamer``, 4): a rig trained on that many of its views; ``crm`` -> all."""
+    rig, _, views = fmt.partition("@")
+    return rig, int(views) if views else "all"
+
+
 def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict:
     name = f"{source.split(':', 1)[1]}-L{level}"
-    scene_dir = args.out / "scenes" / fmt / name
+    rig, views = split_format(fmt)
+    scene_dir = args.out / "scenes" / rig / name
     started = time.perf_counter()
-    data = build_generator_scene(scene_dir, fmt, source, level=level, seed=args.seed, tile=args.tile,
-                                 data_root=args.data_root)
+    if not (scene_dir / "scene.json").is_file():
+        build_generator_scene(scene_dir, rig, source, level=level, seed=args.seed, tile=args.tile,
+                              data_root=args.data_root)
+    data = json.loads((scene_dir / "scene.json").read_text())["input"]
     built = time.perf_counter() - started
-    result = reconstruct(data, args.out / "runs" / fmt / name, method=args.method, data_format=fmt,
-                         steps=args.steps, texture=False, turntable_frames=0, seed=args.seed, overwrite=True,
-                         device=args.device)
+    result = reconstruct(scene_dir / data, args.out / "runs" / fmt.replace("@", "-") / name, method=args.method,
+                         data_format=rig, views=views, steps=args.steps, texture=False, turntable_frames=0,
+                         seed=args.seed, overwrite=True, device=args.device)
     meta = result.config.pipeline.datamanager.dataparser.setup().get_outputs("train").metadata
     scores = score_generator_run(result.mesh, scene_dir, meta["rig_to_training"])
     return {"format": fmt, "source": source, "level": level, "views": result.views, "steps": result.steps,
@@ -67,7 +76,8 @@ def write_report(rows: list[dict], out: Path, command: str) -> None:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
-    parser.add_argument("--formats", default=DEFAULT_FORMATS, help=f"built-in rigs (default {DEFAULT_FORMATS})")
+    parser.add_argument("--formats", default=DEFAULT_FORMATS,
+                        help=f"built-in rigs, RIG@N for N of its views (default {DEFAULT_FORMATS})")
     parser.add_argument("--sources", default="procedural:mug", help="gso:NAME (with --data-root) or procedural:NAME")
     parser.add_argument("--data-root", type=Path, default=REPO.parent / "shared" / "data" / "gso")
     parser.add_argument("--levels", default="0,2")
@@ -80,7 +90,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--resume", action="store_true")
     args = parser.parse_args(argv)
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
-    unknown = [f for f in formats if f not in builtin_rigs()]
+    unknown = [f for f in formats if split_format(f)[0] not in builtin_rigs()]
     if unknown:
         parser.error(f"unknown format(s) {', '.join(unknown)}; built-in rigs: {', '.join(builtin_rigs())}")
     args.out.mkdir(parents=True, exist_ok=True)
