@@ -11,6 +11,11 @@ Writes ``OUT/scenes/<format>/<object>-L<level>/`` (the generator-layout input, m
 ``OUT/runs/<format>/<object>-L<level>/`` (the run) and ``OUT/formats.json`` / ``OUT/formats.md`` (one row per
 format, object and level, and the mean per format and level). Default: ``neus`` with its default steps,
 every view of each rig at its native size. ``--resume`` skips rows already in formats.json.
+
+    python benchmarks/run_formats.py --report OUT_A/formats.json [OUT_B/formats.json ...] [--reference syncdreamer@4]
+
+prints each format beside the reference format on the objects both ran: mean CD and IoU, the mean
+per-object CD ratio with a 95% bootstrap interval over objects, and the objects with IoU below 0.5.
 """
 
 from __future__ import annotations
@@ -20,6 +25,11 @@ import json
 import sys
 import time
 from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).parent))
+from judge import bootstrap_interval  # a sibling script: the judge's paired interval
 
 from va_plugin.api import reconstruct
 from va_plugin.bench.scenes.generator_scene import build_generator_scene, score_generator_run
@@ -74,6 +84,37 @@ def write_report(rows: list[dict], out: Path, command: str) -> None:
     (out / "formats.md").write_text("\n".join(lines) + "\n")
 
 
+def compare_formats(rows: list[dict], reference: str, level: int) -> list[str]:
+    """Markdown rows: each format at ``level`` against ``reference`` on the objects both have."""
+    by_format: dict[str, dict[str, dict]] = {}
+    for r in rows:
+        if r["level"] == level:
+            by_format.setdefault(r["format"], {})[r["source"]] = r
+    ref = by_format.get(reference, {})
+    lines = [f"Level {level}; reference `{reference}`", "",
+             "| format | views x px | objects | mean CD | reference CD | CD per object vs reference [95%] | "
+             "lower CD on | mean IoU | reference IoU | IoU < 0.5 (reference's) |", "|---" * 10 + "|"]
+    for fmt, got in by_format.items():
+        objects = sorted(set(got) & set(ref)) if fmt != reference else sorted(got)
+        if not objects:
+            continue
+        cd = [np.array([got[o]["cd"]]) for o in objects]
+        ref_cd = [np.array([ref[o]["cd"]]) for o in objects] if ref else cd
+        ratio = float(np.mean([c[0] / b[0] - 1 for c, b in zip(cd, ref_cd)]))
+        low, high = bootstrap_interval(ref_cd, cd, relative=True)
+        lower = sum(c[0] < b[0] for c, b in zip(cd, ref_cd))
+        small = [o.split(":", 1)[1] for o in objects if got[o]["iou"] < 0.5]
+        ref_small = [o.split(":", 1)[1] for o in objects if ref and ref[o]["iou"] < 0.5]
+        first = got[objects[0]]
+        lines.append(f"| {fmt} | {first['views']} x {first['tile']} | {len(objects)} | "
+                     f"{np.mean([c[0] for c in cd]):.4f} | {np.mean([b[0] for b in ref_cd]):.4f} | "
+                     f"{100 * ratio:+.1f}% [{100 * low:+.1f}%, {100 * high:+.1f}%] | {lower}/{len(objects)} | "
+                     f"{np.mean([got[o]['iou'] for o in objects]):.3f} | "
+                     f"{np.mean([ref[o]['iou'] for o in objects]) if ref else float('nan'):.3f} | "
+                     f"{', '.join(small) or '-'} ({', '.join(ref_small) or '-'}) |")
+    return lines
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--formats", default=DEFAULT_FORMATS,
@@ -88,7 +129,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default="auto")
     parser.add_argument("--out", type=Path, default=Path("outputs") / "formats")
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--report", nargs="+", type=Path, metavar="FORMATS_JSON",
+                        help="print the comparison of these formats.json files with --reference, run nothing")
+    parser.add_argument("--reference", default="syncdreamer@4", help="the format --report compares with")
     args = parser.parse_args(argv)
+    if args.report:
+        rows = [row for path in args.report for row in json.loads(path.read_text())]
+        for level in sorted({r["level"] for r in rows}):
+            print("\n".join(compare_formats(rows, args.reference, level)) + "\n")
+        return 0
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
     unknown = [f for f in formats if split_format(f)[0] not in builtin_rigs()]
     if unknown:

@@ -1,0 +1,43 @@
+"""benchmarks/run_formats.py: the ``RIG@N`` names and the comparison with a reference format on hand-made rows
+(a real row trains for minutes on ../shared/data)."""
+
+import json
+
+import pytest
+from bench_scripts import load_script
+
+
+@pytest.fixture(scope="module")
+def formats():
+    return load_script("run_formats")
+
+
+def row(fmt, name, cd, iou, views=6, tile=256):
+    return {"format": fmt, "source": f"gso:{name}", "level": 0, "views": views, "tile": tile, "cd": cd, "iou": iou}
+
+
+def test_a_view_count_after_the_rig_name(formats):
+    assert formats.split_format("syncdreamer@4") == ("syncdreamer", 4)
+    assert formats.split_format("crm") == ("crm", "all")
+
+
+def test_comparison_with_the_reference_matches_hand_values(formats):
+    rows = [row("ref", "a", 0.010, 0.8, views=4), row("ref", "b", 0.020, 0.4, views=4),
+            row("new", "a", 0.012, 0.7), row("new", "b", 0.010, 0.3), row("new", "c", 0.5, 0.1)]
+    lines = formats.compare_formats(rows, "ref", 0)
+    new = next(line for line in lines if line.startswith("| new "))
+    cells = [c.strip() for c in new.strip("|").split("|")]
+    # objects a and b only (c has no reference row): CD ratios +20% and -50%, mean -15%
+    assert cells[1:5] == ["6 x 256", "2", "0.0110", "0.0150"]
+    assert cells[5].startswith("-15.0% [")
+    assert cells[6] == "1/2"
+    assert cells[7:9] == ["0.500", "0.600"]
+    assert cells[9] == "b (b)"
+
+
+def test_report_reads_several_files_and_runs_nothing(formats, tmp_path, capsys):
+    (tmp_path / "a.json").write_text(json.dumps([row("syncdreamer@4", "a", 0.01, 0.8, views=4)]))
+    (tmp_path / "b.json").write_text(json.dumps([row("crm", "a", 0.02, 0.9)]))
+    assert formats.main(["--report", str(tmp_path / "a.json"), str(tmp_path / "b.json")]) == 0
+    out = capsys.readouterr().out
+    assert "| crm | 6 x 256 | 1 | 0.0200 | 0.0100 | +100.0% [+100.0%, +100.0%] | 0/1 |" in out
