@@ -29,7 +29,7 @@ from pathlib import Path
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).parent))
-from judge import bootstrap_interval  # a sibling script: the judge's paired interval
+from judge import bootstrap_interval, statistic  # a sibling script: the judge's paired figures
 
 from va_plugin.api import reconstruct
 from va_plugin.bench.scenes.generator_scene import build_generator_scene, score_generator_run
@@ -100,7 +100,7 @@ def compare_formats(rows: list[dict], reference: str, level: int) -> list[str]:
             continue
         cd = [np.array([got[o]["cd"]]) for o in objects]
         ref_cd = [np.array([ref[o]["cd"]]) for o in objects] if ref else cd
-        ratio = float(np.mean([c[0] / b[0] - 1 for c, b in zip(cd, ref_cd)]))
+        ratio = statistic(ref_cd, cd, relative=True)
         low, high = bootstrap_interval(ref_cd, cd, relative=True)
         lower = sum(c[0] < b[0] for c, b in zip(cd, ref_cd))
         small = [o.split(":", 1)[1] for o in objects if got[o]["iou"] < 0.5]
