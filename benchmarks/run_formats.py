@@ -139,6 +139,9 @@ def main(argv: list[str] | None = None) -> int:
             print("\n".join(compare_formats(rows, args.reference, level)) + "\n")
         return 0
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
+    bad_count = [f for f in formats if not f.partition("@")[2].isdigit() and "@" in f]
+    if bad_count:
+        parser.error(f"format(s) {', '.join(bad_count)}: RIG@N needs N a whole number of views, e.g. syncdreamer@4")
     unknown = [f for f in formats if split_format(f)[0] not in builtin_rigs()]
     if unknown:
         parser.error(f"unknown format(s) {', '.join(unknown)}; built-in rigs: {', '.join(builtin_rigs())}")

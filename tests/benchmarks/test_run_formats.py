@@ -41,3 +41,12 @@ def test_report_reads_several_files_and_runs_nothing(formats, tmp_path, capsys):
     assert formats.main(["--report", str(tmp_path / "a.json"), str(tmp_path / "b.json")]) == 0
     out = capsys.readouterr().out
     assert "| crm | 6 x 256 | 1 | 0.0200 | 0.0100 | +100.0% [+100.0%, +100.0%] | 0/1 |" in out
+
+
+@pytest.mark.parametrize("bad", ["crm@x", "crm@", "nosuchrig"])
+def test_a_bad_format_name_is_one_line_and_exit_2(formats, bad, capsys):
+    with pytest.raises(SystemExit) as stop:
+        formats.main(["--formats", bad, "--out", "/nonexistent/never-made"])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert bad.split("@")[0] in err and "Traceback" not in err
