@@ -41,8 +41,10 @@ DEFAULT_FORMATS = "hunyuan3d-std,hunyuan3d-lite,mvadapter,sv3d,era3d,crm,wonder3
 
 def split_format(fmt: str) -> tuple[str, int | str]:
     """``syncdreamer@4`` -> (``syncdreamer``, 4): a rig trained on that many of its views; ``crm`` -> all."""
-    rig, _, views = fmt.partition("@")
-    return rig, int(views) if views else "all"
+    rig, at, views = fmt.partition("@")
+    if at and not views.isdigit():
+        raise ValueError(f"format {fmt}: RIG@N needs N a whole number of views, e.g. syncdreamer@4")
+    return rig, int(views) if at else "all"
 
 
 def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict:
@@ -139,10 +141,10 @@ def main(argv: list[str] | None = None) -> int:
             print("\n".join(compare_formats(rows, args.reference, level)) + "\n")
         return 0
     formats = [f.strip() for f in args.formats.split(",") if f.strip()]
-    bad_count = [f for f in formats if not f.partition("@")[2].isdigit() and "@" in f]
-    if bad_count:
-        parser.error(f"format(s) {', '.join(bad_count)}: RIG@N needs N a whole number of views, e.g. syncdreamer@4")
-    unknown = [f for f in formats if split_format(f)[0] not in builtin_rigs()]
+    try:
+        unknown = [f for f in formats if split_format(f)[0] not in builtin_rigs()]
+    except ValueError as error:
+        parser.error(str(error))
     if unknown:
         parser.error(f"unknown format(s) {', '.join(unknown)}; built-in rigs: {', '.join(builtin_rigs())}")
     args.out.mkdir(parents=True, exist_ok=True)
