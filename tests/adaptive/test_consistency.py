@@ -141,3 +141,24 @@ def test_color_cast_of_a_run_follows_a_tint_of_one_view(tmp_path_factory):
     after = color_cast(pipeline.model, views.cameras, images, views.masks, resolution=32)
     assert before.points > 0 and np.all(after.gains[0] == 1.0)
     np.testing.assert_allclose(after.gains[2], before.gains[2] / tint, rtol=0.03)
+
+
+def test_dense_rigs_allow_a_pixel_at_the_rim_and_still_catch_drift():
+    """With 16 views each ray meets 15 masks, so pixel rounding at a clean rim rules points out; the phase
+    decision then dilates the other masks by a pixel, and a view drifted by 4 px is still caught."""
+    from types import SimpleNamespace
+
+    from va_plugin.analysis.consistency import DENSE_VIEWS, input_silhouette_support, silhouette_tolerance_px
+
+    assert silhouette_tolerance_px(4) == 0 and silhouette_tolerance_px(DENSE_VIEWS) == 1
+    cameras = orbit_cameras([22.5 * k for k in range(16)], 30.0, resolution=64)
+    masks = _sphere_masks(cameras, centre=(0.05, 0.03, -0.02))
+    assert not silhouette_support(cameras, masks, scene_radius=1.0).consistent  # rim rounding alone
+    clean = input_silhouette_support(SimpleNamespace(cameras=cameras, masks=masks[..., None].float(),
+                                                     scene_radius=1.0))
+    assert clean.consistent and clean.as_dict()["tolerance_px"] == 1
+    shifted = masks.clone()
+    shifted[5] = torch.roll(masks[5], shifts=4, dims=1)
+    drifted = input_silhouette_support(SimpleNamespace(cameras=cameras, masks=shifted[..., None].float(),
+                                                       scene_radius=1.0))
+    assert not drifted.consistent and drifted.unsupported[5] > 0.02

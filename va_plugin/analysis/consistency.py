@@ -42,6 +42,7 @@ class SilhouetteSupport:
     unsupported: list[float]
     pixels: list[int]
     threshold: float
+    tolerance_px: int = 0
 
     @property
     def worst(self) -> float:
@@ -54,7 +55,7 @@ class SilhouetteSupport:
 
     def as_dict(self) -> dict:
         return {"test": "silhouette_support", "consistent": self.consistent, "threshold": self.threshold,
-                "worst_unsupported": round(self.worst, 5),
+                "tolerance_px": self.tolerance_px, "worst_unsupported": round(self.worst, 5),
                 "views": [{"view": k, "unsupported": round(u, 5), "pixels": n}
                           for k, (u, n) in enumerate(zip(self.unsupported, self.pixels))]}
 
@@ -62,6 +63,19 @@ class SilhouetteSupport:
 DEFAULT_THRESHOLD = 0.001
 """Share of a view's foreground that may be unsupported before the views count as disagreeing (above
 what clean, consistent renders show)."""
+
+DENSE_VIEWS = 8
+"""From this many views on, the phase decision's silhouette test allows :data:`DENSE_TOLERANCE_PX`: each
+ray is checked against every other view, so with many views a point on the rim of a clean silhouette is
+almost surely ruled out by some view's pixel rounding."""
+DENSE_TOLERANCE_PX = 1
+
+
+def silhouette_tolerance_px(n_views: int) -> int:
+    """The other masks' dilation (pixels) for the phase decision's silhouette test on ``n_views`` views:
+    none below :data:`DENSE_VIEWS`, where a pixel of drift is what the test must see, else
+    :data:`DENSE_TOLERANCE_PX`."""
+    return DENSE_TOLERANCE_PX if n_views >= DENSE_VIEWS else 0
 
 
 @torch.no_grad()
@@ -109,7 +123,7 @@ def silhouette_support(cameras: Cameras, masks: torch.Tensor, scene_radius: floa
         ok = supported.view(-1, samples).any(-1) & hit
         fractions.append(1.0 - float(ok.float().mean()))
         counts.append(int(inside.numel()))
-    return SilhouetteSupport(fractions, counts, threshold)
+    return SilhouetteSupport(fractions, counts, threshold, tolerance_px)
 
 
 @dataclass
@@ -284,7 +298,9 @@ def input_color_cast(pipeline, threshold: float):
 
 
 def input_silhouette_support(datamanager):
-    """:func:`silhouette_support` of the training views' masks (None without masks)."""
+    """:func:`silhouette_support` of the training views' masks (None without masks), with the tolerance
+    of :func:`silhouette_tolerance_px` for their number."""
     if datamanager.masks is None:
         return None
-    return silhouette_support(datamanager.cameras, datamanager.masks[..., 0] > 0.5, datamanager.scene_radius)
+    return silhouette_support(datamanager.cameras, datamanager.masks[..., 0] > 0.5, datamanager.scene_radius,
+                              tolerance_px=silhouette_tolerance_px(len(datamanager.cameras)))
