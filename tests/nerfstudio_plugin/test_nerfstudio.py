@@ -41,6 +41,8 @@ def ns_options(method: str) -> list[str]:
             options += ["--" + key.replace("pipeline.model.", "pipeline.model.va.").replace("_", "-"), str(value)]
     if getattr(model.field, "has_view_branches", False) or hasattr(model.field, "diagnostics_scale"):
         options += ["--pipeline.model.va.field.diagnostics-scale", "0"]  # the pictures take minutes
+    if hasattr(model.field, "skip_consistent_scenes"):
+        options += ["--pipeline.model.va.field.skip-consistent-scenes", "False"]  # the toy's views agree
     return options
 
 
