@@ -34,6 +34,8 @@ from judge import bootstrap_interval, statistic  # a sibling script: the judge's
 from va_plugin.api import reconstruct
 from va_plugin.bench.scenes.generator_scene import build_generator_scene, score_generator_run
 from va_plugin.data.rigfile import builtin_rigs
+from va_plugin.engine.options import check_views
+from va_plugin.errors import ConfigError
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_FORMATS = "hunyuan3d-std,hunyuan3d-lite,mvadapter,sv3d,era3d,crm,wonder3dpp-ortho,four-view-grid"
@@ -44,7 +46,10 @@ def split_format(fmt: str) -> tuple[str, int | str]:
     rig, at, views = fmt.partition("@")
     if at and not views.isdigit():
         raise ValueError(f"format {fmt}: RIG@N needs N a whole number of views, e.g. syncdreamer@4")
-    return rig, int(views) if at else "all"
+    try:
+        return rig, check_views(int(views)) if at else "all"
+    except ConfigError as error:  # va-recon's own rule for a view count
+        raise ValueError(f"format {fmt}: {error}") from None
 
 
 def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict:

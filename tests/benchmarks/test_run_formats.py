@@ -43,7 +43,7 @@ def test_report_reads_several_files_and_runs_nothing(formats, tmp_path, capsys):
     assert "| crm | 6 x 256 | 1 | 0.0200 | 0.0100 | +100.0% [+100.0%, +100.0%] | 0/1 |" in out
 
 
-@pytest.mark.parametrize("bad", ["crm@x", "crm@", "nosuchrig"])
+@pytest.mark.parametrize("bad", ["crm@x", "crm@", "syncdreamer@0", "nosuchrig"])
 def test_a_bad_format_name_is_one_line_and_exit_2(formats, bad, capsys):
     with pytest.raises(SystemExit) as stop:
         formats.main(["--formats", bad, "--out", "/nonexistent/never-made"])
