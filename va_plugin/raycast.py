@@ -148,6 +148,22 @@ class MeshRenderer:
         rgb = np.where(hits > 0, rgb_sum / np.maximum(hits, 1.0), 0.0)
         return np.concatenate([rgb, alpha], -1).reshape(height, width, 4).astype(np.float32)
 
+    def normals(self, cameras: Cameras, index: int) -> np.ndarray:
+        """World-space unit normals and coverage ``[H, W, 4]`` (normal, then 1 where the pixel centre's ray
+        hits, 0 elsewhere, with a zero normal) of one view: the smoothed vertex normals at each hit, turned to
+        face the camera, as a generator's normal map shows the visible side."""
+        origins, directions = self.pixel_rays(cameras, index, 0.0, 0.0)
+        t, faces, bary = self.cast(origins, directions)
+        hit = np.isfinite(t)
+        out = np.zeros((len(t), 4), np.float32)
+        if hit.any():
+            normals = np.einsum("nk,nkc->nc", bary[hit], self.vertex_normals[self.faces[faces[hit]]])
+            normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+            normals *= np.where((normals * directions[hit]).sum(-1, keepdims=True) > 0, -1.0, 1.0)
+            out[hit, :3] = normals
+            out[hit, 3] = 1.0
+        return out.reshape(cameras.height, cameras.width, 4)
+
     def depth(self, cameras: Cameras, index: int) -> np.ndarray:
         """Depth along the optical axis ``[H, W]`` at pixel centres (inf where a ray misses)."""
         origins, directions = self.pixel_rays(cameras, index, 0.0, 0.0)

@@ -17,7 +17,8 @@ from va_plugin.bench.scenes.generator_scene import (
 )
 from va_plugin.data.dataparsers import resolve_dataparser
 from va_plugin.data.images import read_image
-from va_plugin.data.rigfile import builtin_rigs
+from va_plugin.data.rigfile import builtin_rigs, normal_files
+from va_plugin.raycast import MeshRenderer
 
 TILE = 24
 
@@ -69,3 +70,35 @@ def test_a_perfect_mesh_scores_zero_chamfer(tmp_path):
     shifted.export(tmp_path / "off.ply")
     off = score_generator_run(tmp_path / "off.ply", tmp_path, move, n_samples=5000, resolution=32)
     assert off["iou"] < 0.8 and off["cd"] > 3 * scores["cd"]
+
+
+@pytest.mark.parametrize("fmt, level", [("era3d", 0), ("wonder3dpp-ortho", 2)])
+def test_normal_maps_are_written_in_the_generators_frame_and_read_back_as_the_surfaces(fmt, level, tmp_path):
+    path = build_generator_scene(tmp_path, fmt, "procedural:blocks", level=level, tile=TILE, mesh_resolution=48)
+    assert json.loads((tmp_path / "scene.json").read_text())["normal_maps"]
+    train = read(path, fmt)
+    normals = train.metadata["normals"].numpy()  # world axes, zero off the object
+    truth = trimesh.load(tmp_path / "mesh.ply", process=False)
+    move = train.metadata["rig_to_training"]
+    truth.apply_translation(-np.asarray(move["centre"]))
+    truth.apply_scale(move["scale"])
+    renderer = MeshRenderer(truth, lambda hits: np.zeros((len(hits.points), 3), np.float32))
+    spec = builtin_rigs()[fmt]
+    cosines = {}
+    for k in range(spec.count):
+        expected = renderer.normals(train.cameras, k)
+        both = (expected[..., 3] > 0) & (np.abs(normals[k]).sum(-1) > 0)
+        assert both.mean() > 0.1
+        cosines[k] = float(np.median((expected[..., :3] * normals[k]).sum(-1)[both]))
+    clean = clean_view_ids(spec)
+    assert min(cosines[k] for k in clean) > 0.99  # only the 8-bit encoding between them
+    assert all(c > 0.9 for c in cosines.values())  # level 2: views from a slightly wrong pose
+    if level == 0:
+        assert min(cosines.values()) > 0.99
+    # stored in the front camera's axes: read as the side view's own axes, a side view's normals are wrong
+    side = max(range(spec.count), key=lambda k: abs(np.sin(np.radians(spec.azimuths[k]))))
+    stored = read_image(normal_files(spec, path)[side])
+    as_own = (stored[..., :3] * 2.0 - 1.0) * np.array([1.0, -1.0, -1.0]) @ train.cameras.c2w[side, :, :3].numpy().T
+    expected = renderer.normals(train.cameras, side)
+    both = (expected[..., 3] > 0) & (stored[..., 3] > 0.5)
+    assert np.median((expected[..., :3] * as_own).sum(-1)[both]) < 0.5

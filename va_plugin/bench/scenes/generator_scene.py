@@ -104,19 +104,37 @@ def build_generator_scene(out_dir: Path, rig: str | RigSpec, source: str = "proc
         src = rendered_source(load_source(source, source_resolution, data_root, mesh_resolution,
                                           gso_off_rig=True), source_resolution)
         cameras = generator_cameras(spec, tile, scale)
-        views = []
+        views, normals = [], []
         for k in range(spec.count):
-            p = draw_perturbation(inconsistency, k)
-            views.append(src.perturbed(cameras, k, p) if inconsistency.perturbs(k) else src.clean(cameras, k))
-        path = write_layout(out_dir / input_name(spec), spec, np.stack(views).astype(np.float32))
+            p = draw_perturbation(inconsistency, k) if inconsistency.perturbs(k) else None
+            views.append(src.clean(cameras, k) if p is None else src.perturbed(cameras, k, p))
+            if spec.normals:
+                normals.append(encode_normals(src.normals(cameras, k, p), cameras, k, spec.normal_frame))
+        path = write_layout(out_dir / input_name(spec), spec, np.stack(views).astype(np.float32),
+                            np.stack(normals) if normals else None)
         mesh = src.ground_truth.copy()
         mesh.apply_scale(scale)
         mesh.export(out_dir / "mesh.ply")
     info = {"source": src.spec, "rig": spec.name, "rig_file": spec.origin, "level": inconsistency.level,
             "kinds": list(inconsistency.kinds), "seed": seed, "tile": tile, "object_scale": scale,
-            "clean_views": list(inconsistency.clean_views), "input": path.name, "mesh": "mesh.ply"}
+            "clean_views": list(inconsistency.clean_views), "input": path.name, "mesh": "mesh.ply",
+            "normal_maps": bool(normals)}
     (out_dir / "scene.json").write_text(json.dumps(info, indent=2))
     return path
+
+
+def encode_normals(camera_normals: np.ndarray, cameras: Cameras, view: int, normal_frame: str) -> np.ndarray:
+    """A normal map as the generator writes it: ``camera_normals [H, W, 4]`` (OpenCV axes of the camera that
+    saw them, then coverage) taken to the world through view ``view``'s nominal pose (a view drawn from a
+    wrong pose carries its error, as a generated one would), then stored ``(n + 1) / 2`` in the OpenGL axes
+    of the first camera (``normal_frame`` "front") or of the view's own ("view"), with the coverage as alpha
+    (what :func:`~va_plugin.data.dataparsers.generators.read_normal_maps` reads)."""
+    nominal = cameras.c2w[view, :, :3].numpy().astype(np.float64)
+    frame = cameras.c2w[0 if normal_frame == "front" else view, :, :3].numpy().astype(np.float64)
+    in_frame = camera_normals[..., :3] @ nominal.T @ frame  # world = R n; in the frame: R_f^T world
+    gl = in_frame * np.array([1.0, -1.0, -1.0])
+    alpha = camera_normals[..., 3:]
+    return np.concatenate([np.where(alpha > 0, (gl + 1.0) / 2.0, 0.0), alpha], -1).astype(np.float32)
 
 
 def score_generator_run(mesh_path: Path, scene_dir: Path, rig_to_training: dict, n_samples: int = 100_000,

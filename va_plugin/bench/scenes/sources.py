@@ -79,6 +79,11 @@ class SceneSource:
         """The inconsistent version of view ``view``, ``[H, W, 4]``."""
         raise NotImplementedError
 
+    def normals(self, cameras: Cameras, view: int, p: ViewPerturbation | None = None) -> np.ndarray:
+        """Normal map ``[H, W, 4]`` of view ``view`` (perturbed by ``p``: moved on its orbit, the surface
+        displaced): unit normals in the OpenCV axes of the camera that saw them, then coverage."""
+        raise NotImplementedError(f"{type(self).__name__} renders no normal maps")
+
     def info(self) -> dict[str, Any]:
         """Extra facts for scene.json."""
         return dict(self._info)
@@ -104,6 +109,17 @@ class RenderedSource(SceneSource):
             renderer = renderer.deformed(perturbed_vertices(renderer.rest_vertices, p))
         camera = cameras.subset([view]) if p.orbit_deg is None else perturbed_camera(cameras, view, p.orbit_deg)
         return apply_appearance(renderer.render(camera, 0), p)
+
+
+    def normals(self, cameras: Cameras, view: int, p: ViewPerturbation | None = None) -> np.ndarray:
+        renderer = self.renderer
+        if p is not None and p.displacement is not None:
+            renderer = renderer.deformed(perturbed_vertices(renderer.rest_vertices, p))
+        camera = cameras.subset([view]) if p is None or p.orbit_deg is None else \
+            perturbed_camera(cameras, view, p.orbit_deg)
+        world = renderer.normals(camera, 0)
+        rotation = camera.c2w[0, :, :3].numpy()
+        return np.concatenate([world[..., :3] @ rotation, world[..., 3:]], -1).astype(np.float32)
 
 
 class ImageSource(SceneSource):
