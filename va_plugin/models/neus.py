@@ -363,9 +363,10 @@ def _scatter_rays(inner: dict[str, torch.Tensor], index: torch.Tensor, n_rays: i
     return out
 
 
-
 HULL_RESOLUTION = 64
 """Cells along the longest side of the visual hull's grid for the hull-fill prior."""
+
+
 def hull_core(cameras: Cameras, masks: torch.Tensor, depth: float) -> tuple[torch.Tensor, float]:
     """Voxel centres ``[m, 3]`` (on the cameras' device) of the visual hull (64^3) of ``masks [n, H, W, 1]``
     seen by ``cameras`` that lie at least ``depth`` voxels from the hull's outside, and the voxel size."""

@@ -110,7 +110,6 @@ class RenderedSource(SceneSource):
         camera = cameras.subset([view]) if p.orbit_deg is None else perturbed_camera(cameras, view, p.orbit_deg)
         return apply_appearance(renderer.render(camera, 0), p)
 
-
     def normals(self, cameras: Cameras, view: int, p: ViewPerturbation | None = None) -> np.ndarray:
         renderer = self.renderer
         if p is not None and p.displacement is not None:
