@@ -107,11 +107,16 @@ class MeshRenderer:
         """Shaded colors ``[n, 3]`` of hits given by face ids ``[n]`` and barycentrics ``[n, 3]``."""
         corners = self.faces[face_ids]
         points = np.einsum("nk,nkc->nc", bary, self.rest_vertices[corners])
-        normals = np.einsum("nk,nkc->nc", bary, self.vertex_normals[corners])
-        normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+        normals = self.hit_normals(face_ids, bary)
         diffuse = np.clip(normals @ LIGHT_DIRECTION, 0.0, 1.0)[:, None]
         albedo = self.albedo(SurfaceHits(points.astype(np.float32), corners, bary.astype(np.float32)))
         return np.clip(albedo * (AMBIENT + (1.0 - AMBIENT) * diffuse), 0.0, 1.0)
+
+    def hit_normals(self, face_ids: np.ndarray, bary: np.ndarray) -> np.ndarray:
+        """Unit smoothed normals ``[n, 3]`` of hits given by face ids ``[n]`` and barycentrics ``[n, 3]``."""
+        normals = np.einsum("nk,nkc->nc", bary, self.vertex_normals[self.faces[face_ids]])
+        normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+        return normals
 
     def pixel_rays(self, cameras: Cameras, index: int, dy: float = 0.0, dx: float = 0.0
                    ) -> tuple[np.ndarray, np.ndarray]:
@@ -157,8 +162,7 @@ class MeshRenderer:
         hit = np.isfinite(t)
         out = np.zeros((len(t), 4), np.float32)
         if hit.any():
-            normals = np.einsum("nk,nkc->nc", bary[hit], self.vertex_normals[self.faces[faces[hit]]])
-            normals /= np.maximum(np.linalg.norm(normals, axis=-1, keepdims=True), 1e-12)
+            normals = self.hit_normals(faces[hit], bary[hit])
             normals *= np.where((normals * directions[hit]).sum(-1, keepdims=True) > 0, -1.0, 1.0)
             out[hit, :3] = normals
             out[hit, 3] = 1.0

@@ -104,21 +104,23 @@ class RenderedSource(SceneSource):
         return self.renderer.render(cameras, view)
 
     def perturbed(self, cameras: Cameras, view: int, p: ViewPerturbation) -> np.ndarray:
-        renderer = self.renderer
-        if p.displacement is not None:
-            renderer = renderer.deformed(perturbed_vertices(renderer.rest_vertices, p))
-        camera = cameras.subset([view]) if p.orbit_deg is None else perturbed_camera(cameras, view, p.orbit_deg)
+        renderer, camera = self._seen(cameras, view, p)
         return apply_appearance(renderer.render(camera, 0), p)
 
     def normals(self, cameras: Cameras, view: int, p: ViewPerturbation | None = None) -> np.ndarray:
-        renderer = self.renderer
-        if p is not None and p.displacement is not None:
-            renderer = renderer.deformed(perturbed_vertices(renderer.rest_vertices, p))
-        camera = cameras.subset([view]) if p is None or p.orbit_deg is None else \
-            perturbed_camera(cameras, view, p.orbit_deg)
+        renderer, camera = self._seen(cameras, view, p)
         world = renderer.normals(camera, 0)
         rotation = camera.c2w[0, :, :3].numpy()
         return np.concatenate([world[..., :3] @ rotation, world[..., 3:]], -1).astype(np.float32)
+
+    def _seen(self, cameras: Cameras, view: int, p: ViewPerturbation | None) -> tuple[MeshRenderer, Cameras]:
+        """The renderer (its surface displaced by ``p``) and the one camera (moved on its orbit by ``p``)
+        that draw view ``view``; ``p`` None: the clean ones."""
+        renderer = self.renderer
+        if p is not None and p.displacement is not None:
+            renderer = renderer.deformed(perturbed_vertices(renderer.rest_vertices, p))
+        moved = p is not None and p.orbit_deg is not None
+        return renderer, perturbed_camera(cameras, view, p.orbit_deg) if moved else cameras.subset([view])
 
 
 class ImageSource(SceneSource):
