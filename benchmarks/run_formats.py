@@ -33,9 +33,11 @@ from judge import bootstrap_interval, statistic  # a sibling script: the judge's
 
 from va_plugin.api import reconstruct
 from va_plugin.bench.scenes.generator_scene import build_generator_scene, score_generator_run
+from va_plugin.config import apply_override
 from va_plugin.data.rigfile import builtin_rigs
 from va_plugin.engine.options import check_views
-from va_plugin.errors import ConfigError
+from va_plugin.errors import ConfigError, VAError
+from va_plugin.registry import get_method
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_FORMATS = "hunyuan3d-std,hunyuan3d-lite,mvadapter,sv3d,era3d,crm,wonder3dpp-ortho,four-view-grid"
@@ -64,14 +66,15 @@ def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict
     built = time.perf_counter() - started
     result = reconstruct(scene_dir / data, args.out / "runs" / fmt.replace("@", "-") / name, method=args.method,
                          data_format=rig, views=views, steps=args.steps, texture=False, turntable_frames=0,
-                         seed=args.seed, overwrite=True, device=args.device)
+                         seed=args.seed, overwrite=True, device=args.device, overrides=list(args.overrides))
     meta = result.config.pipeline.datamanager.dataparser.setup().get_outputs("train").metadata
     scores = score_generator_run(result.mesh, scene_dir, meta["rig_to_training"])
     return {"format": fmt, "source": source, "level": level, "views": result.views, "steps": result.steps,
             "cd": scores["cd"], "iou": scores["iou"], "fscore": scores["fscore"],
             "silhouette_iou_mean": sum(meta["silhouette_iou"]) / len(meta["silhouette_iou"]),
             "train_seconds": result.train_seconds, "build_seconds": round(built, 1),
-            "tile": json.loads((scene_dir / "scene.json").read_text())["tile"]}
+            "tile": json.loads((scene_dir / "scene.json").read_text())["tile"],
+            **({"overrides": list(args.overrides)} if args.overrides else {})}
 
 
 def write_report(rows: list[dict], out: Path, command: str) -> None:
@@ -136,6 +139,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--device", default="auto")
     parser.add_argument("--out", type=Path, default=Path("outputs") / "formats")
     parser.add_argument("--resume", action="store_true")
+    parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="PATH=VALUE",
+                        help="a config override for every run, as va-recon's --set; the rows record it")
     parser.add_argument("--report", nargs="+", type=Path, metavar="FORMATS_JSON",
                         help="print the comparison of these formats.json files with --reference, run nothing")
     parser.add_argument("--reference", default="syncdreamer@4", help="the format --report compares with")
@@ -152,6 +157,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(error))
     if unknown:
         parser.error(f"unknown format(s) {', '.join(unknown)}; built-in rigs: {', '.join(builtin_rigs())}")
+    for override in args.overrides:  # a mistyped key fails here, before any scene is built
+        try:
+            apply_override(get_method(args.method).make_config(), override)
+        except VAError as error:
+            parser.error(str(error))
     args.out.mkdir(parents=True, exist_ok=True)
     done = json.loads((args.out / "formats.json").read_text()) if args.resume and \
         (args.out / "formats.json").is_file() else []
@@ -160,7 +170,8 @@ def main(argv: list[str] | None = None) -> int:
     for fmt in formats:
         for source in (s.strip() for s in args.sources.split(",") if s.strip()):
             for level in (int(v) for v in args.levels.split(",")):
-                if any((r["format"], r["source"], r["level"]) == (fmt, source, level) for r in done):
+                if any((r["format"], r["source"], r["level"], r.get("overrides", [])) ==
+                       (fmt, source, level, args.overrides) for r in done):
                     continue
                 row = run_row(fmt, source, level, args)
                 print(f"{fmt} {source} level {level}: CD {row['cd']:.4f} IoU {row['iou']:.3f} "

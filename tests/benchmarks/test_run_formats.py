@@ -50,3 +50,14 @@ def test_a_bad_format_name_is_one_line_and_exit_2(formats, bad, capsys):
     assert stop.value.code == 2
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert bad.split("@")[0] in err and "Traceback" not in err
+
+
+@pytest.mark.parametrize("bad", ["pipeline.model.no_such_key=1", "pipeline.model.crossings_weight"])
+def test_a_bad_override_is_one_line_and_exit_2_before_any_work(formats, bad, tmp_path, capsys):
+    out = tmp_path / "never-made"
+    with pytest.raises(SystemExit) as stop:
+        formats.main(["--formats", "crm", "--set", bad, "--out", str(out)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "Traceback" not in err and "error:" in err
+    assert not out.exists()
