@@ -194,13 +194,13 @@ def _example_key(section: Any, name: str) -> str:
 _POSITIVE = frozenset({
     "attention_dim", "attention_heads", "base_resolution", "border", "bound", "branch_layers", "branch_width",
     "checkpoint_every", "color_width", "crossings_rays", "density_threshold", "eval_chunk", "features_per_level",
-    "finite_difference_cells", "hidden_width", "hull_points", "hull_resolution", "image_scale", "init_radius",
+    "finite_difference_cells", "hidden_width", "hull_resolution", "image_scale", "init_radius",
     "keep_checkpoints", "log_every", "max_resolution", "max_skips_in_a_row", "max_steps", "n_levels", "n_samples",
     "ortho_scale", "rays_per_batch", "resolution", "scene_radius", "sdf_width", "skip_margin",
     "snapshot_every", "softplus_beta", "update_every"})
 _NON_NEGATIVE = frozenset({  # 0 is meaningful for these (off, none, all)
     "close_px", "color_layers", "consistent_color_cast", "diagnostics_scale",
-    "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers", "hull_depth",
+    "eval_every", "eval_views", "fused_samples_per_ray", "geo_feature_dim", "hidden_layers",
     "inv_s_collapse", "inv_s_saturation", "inv_s_tolerance", "lr", "max_restores", "mesh_smoothing",
     "min_sample_weight", "n_importance", "num_threads", "position_frequencies", "schedule_steps", "sdf_layers",
     "shared_color_weight", "shared_lr_scale", "snapshot_inv_s_fraction", "spike_factor", "spike_floor",

@@ -5,13 +5,9 @@ from __future__ import annotations
 import math
 from dataclasses import dataclass, field
 
-import numpy as np
 import torch
-from scipy import ndimage
 from torch import nn
 
-from va_plugin.cameras import Cameras
-from va_plugin.data.visual_hull import visual_hull
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
@@ -78,16 +74,6 @@ class NeuSModelConfig(ModelConfig):
     """Stratified points per line of the crossings prior; the soft indicator's width is their spacing."""
     crossings_start: float = 0.1
     """Share of the step budget before the crossings prior starts."""
-    hull_weight: float = 0.0
-    """Weight of the hull-fill prior (0 turns it off): the mean positive SDF at ``hull_points`` random points
-    at least ``hull_depth`` voxels inside the training masks' visual hull (64^3). It keeps filled the space
-    no view carves away, so the flat faces that orthographic views without normal maps see only head-on or
-    edge-on stay flat instead of caving in (a box); it fills real hollows that no silhouette shows too
-    (between a figure's legs, inside a hat). It starts with the crossings prior."""
-    hull_points: int = 1024
-    """Points per step of the hull-fill prior."""
-    hull_depth: float = 2.0
-    """How deep inside the visual hull, in voxels of its 64^3 grid, the hull-fill prior's points lie."""
 
     def samples_per_ray(self) -> int:
         return int(self.n_samples) + int(self.n_importance)
@@ -111,9 +97,6 @@ class NeuSModel(Model):
             raise ConfigError("crossings_weight must be >= 0, crossings_rays >= 1, crossings_samples >= 2 and "
                               f"crossings_start in [0, 1], got {config.crossings_weight}, {config.crossings_rays}, "
                               f"{config.crossings_samples} and {config.crossings_start}")
-        if not config.hull_weight >= 0 or config.hull_points < 1 or not config.hull_depth >= 0:
-            raise ConfigError(f"hull_weight must be >= 0, hull_points >= 1 and hull_depth >= 0, got "
-                              f"{config.hull_weight}, {config.hull_points} and {config.hull_depth}")
         if config.sdf_gradient not in SDF_GRADIENTS:
             raise ConfigError(f"sdf_gradient must be one of {', '.join(SDF_GRADIENTS)}, got {config.sdf_gradient!r}")
         if config.sdf_gradient == "analytic" and not self.field.analytic_sdf_gradient:
@@ -122,11 +105,6 @@ class NeuSModel(Model):
         self.sdf_gradient = config.sdf_gradient if config.sdf_gradient != "auto" else \
             ("analytic" if self.field.analytic_sdf_gradient else "autograd")  # "auto" resolved
         self.variance = SingleVariance(config.variance_init)
-        # the hull-fill prior's points (None: the prior is off), found once from the training masks
-        self.hull_core: torch.Tensor | None = None
-        self.hull_voxel = 0.0
-        if config.hull_weight > 0 and scene.train_masks is not None and scene.train_cameras is not None:
-            self.hull_core, self.hull_voxel = hull_core(scene.train_cameras, scene.train_masks, config.hull_depth)
         # per batch ray of the last training batch: samples evaluated with gradients (skipped rays count 0),
         # and SDF evaluations of the gradient-free coarse and up-sampling passes
         self.samples_per_ray = 0.0
@@ -302,17 +280,7 @@ class NeuSModel(Model):
             loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
         if cfg.crossings_weight > 0 and self.training and self.step >= cfg.crossings_start * self.scene.schedule_steps:
             loss["crossings"] = cfg.crossings_weight * self._crossings(outputs["accumulation"].device)
-        if self.hull_core is not None and len(self.hull_core) and self.training and \
-                self.step >= cfg.crossings_start * self.scene.schedule_steps:
-            loss["hull"] = cfg.hull_weight * self._hull_fill(outputs["accumulation"].device)
         return self.apply_extra_losses(loss, outputs, batch)
-
-    def _hull_fill(self, device: torch.device) -> torch.Tensor:
-        """The mean positive SDF at random points deep inside the visual hull (a scalar ``[]``)."""
-        core = self.hull_core.to(device)
-        index = torch.randint(len(core), (self.config.hull_points,), device=device)
-        points = core[index] + (torch.rand(len(index), 3, device=device) - 0.5) * self.hull_voxel
-        return torch.relu(self.field.geometry(points)[0][..., 0]).mean()
 
     def _crossings(self, device: torch.device) -> torch.Tensor:
         """Half the mean number of surface crossings of random lines through the scene sphere (the
@@ -361,21 +329,3 @@ def _scatter_rays(inner: dict[str, torch.Tensor], index: torch.Tensor, n_rays: i
             value = value * 0.0 + full[index]
         out[key] = full.index_put((index,), value)
     return out
-
-
-HULL_RESOLUTION = 64
-"""Cells along the longest side of the visual hull's grid for the hull-fill prior."""
-
-
-def hull_core(cameras: Cameras, masks: torch.Tensor, depth: float) -> tuple[torch.Tensor, float]:
-    """Voxel centres ``[m, 3]`` (on the cameras' device) of the visual hull (64^3) of ``masks [n, H, W, 1]``
-    seen by ``cameras`` that lie at least ``depth`` voxels from the hull's outside, and the voxel size."""
-    hull = visual_hull(cameras, masks[..., 0] > 0.5, HULL_RESOLUTION)
-    if hull.points.numel() == 0:
-        return hull.points.to(cameras.c2w.device), hull.voxel
-    cells = torch.round((hull.points - hull.points.min(0).values) / hull.voxel).long() + 1  # a free margin
-    grid = np.zeros([int(v) + 2 for v in cells.max(0).values], bool)
-    index = tuple(cells.T.numpy())
-    grid[index] = True
-    inside = ndimage.distance_transform_edt(grid)[index]  # voxels to the nearest free cell
-    return hull.points[torch.from_numpy(inside >= depth)].to(cameras.c2w.device), hull.voxel
