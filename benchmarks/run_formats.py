@@ -10,7 +10,8 @@ F-score against the true mesh brought into the training frame, unit-box protocol
 Writes ``OUT/scenes/<format>/<object>-L<level>/`` (the generator-layout input, mesh.ply, scene.json),
 ``OUT/runs/<format>/<object>-L<level>/`` (the run) and ``OUT/formats.json`` / ``OUT/formats.md`` (one row per
 format, object and level, and the mean per format and level). Default: ``neus`` with its default steps,
-every view of each rig at its native size. ``--resume`` skips rows already in formats.json.
+every view of each rig at its native size. ``--resume`` skips rows already in formats.json (same format,
+source, level, seed and overrides).
 
     python benchmarks/run_formats.py --report OUT_A/formats.json [OUT_B/formats.json ...] [--reference syncdreamer@4]
 
@@ -41,6 +42,7 @@ from va_plugin.registry import get_method
 
 REPO = Path(__file__).resolve().parents[1]
 DEFAULT_FORMATS = "hunyuan3d-std,hunyuan3d-lite,mvadapter,sv3d,era3d,crm,wonder3dpp-ortho,four-view-grid"
+DEFAULT_SEED = 42  # rows written before rows recorded their seed ran with it
 
 
 def split_format(fmt: str) -> tuple[str, int | str]:
@@ -69,7 +71,8 @@ def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict
                          seed=args.seed, overwrite=True, device=args.device, overrides=list(args.overrides))
     meta = result.config.pipeline.datamanager.dataparser.setup().get_outputs("train").metadata
     scores = score_generator_run(result.mesh, scene_dir, meta["rig_to_training"])
-    return {"format": fmt, "source": source, "level": level, "views": result.views, "steps": result.steps,
+    return {"format": fmt, "source": source, "level": level, "seed": args.seed, "views": result.views,
+            "steps": result.steps,
             "cd": scores["cd"], "iou": scores["iou"], "fscore": scores["fscore"],
             "silhouette_iou_mean": sum(meta["silhouette_iou"]) / len(meta["silhouette_iou"]),
             "train_seconds": result.train_seconds, "build_seconds": round(built, 1),
@@ -95,32 +98,40 @@ def write_report(rows: list[dict], out: Path, command: str) -> None:
 
 
 def compare_formats(rows: list[dict], reference: str, level: int) -> list[str]:
-    """Markdown rows: each format at ``level`` against ``reference`` on the objects both have."""
-    by_format: dict[str, dict[str, dict]] = {}
+    """Markdown rows: each format at ``level`` against ``reference`` on the objects both have; an object with
+    rows of several seeds counts with its mean over them (the judge's interval draws seeds within objects)."""
+    by_format: dict[str, dict[str, list[dict]]] = {}
     for r in rows:
         if r["level"] == level:
-            by_format.setdefault(r["format"], {})[r["source"]] = r
+            by_format.setdefault(r["format"], {}).setdefault(r["source"], []).append(r)
     ref = by_format.get(reference, {})
     lines = [f"Level {level}; reference `{reference}`", "",
-             "| format | views x px | objects | mean CD | reference CD | CD per object vs reference [95%] | "
-             "lower CD on | mean IoU | reference IoU | IoU < 0.5 (reference's) |", "|---" * 10 + "|"]
+             "| format | views x px | objects | seeds | mean CD | reference CD | CD per object vs reference [95%] | "
+             "lower CD on | mean IoU | reference IoU | IoU < 0.5 (reference's) |", "|---" * 11 + "|"]
+
+    def values(runs: list[dict], key: str) -> np.ndarray:
+        return np.array([r[key] for r in runs])
+
     for fmt, got in by_format.items():
         objects = sorted(set(got) & set(ref)) if fmt != reference else sorted(got)
         if not objects:
             continue
-        cd = [np.array([got[o]["cd"]]) for o in objects]
-        ref_cd = [np.array([ref[o]["cd"]]) for o in objects] if ref else cd
+        cd = [values(got[o], "cd") for o in objects]
+        ref_cd = [values(ref[o], "cd") for o in objects] if ref else cd
         ratio = statistic(ref_cd, cd, relative=True)
         low, high = bootstrap_interval(ref_cd, cd, relative=True)
-        lower = sum(c[0] < b[0] for c, b in zip(cd, ref_cd))
-        small = [o.split(":", 1)[1] for o in objects if got[o]["iou"] < 0.5]
-        ref_small = [o.split(":", 1)[1] for o in objects if ref and ref[o]["iou"] < 0.5]
-        first = got[objects[0]]
+        lower = sum(c.mean() < b.mean() for c, b in zip(cd, ref_cd))
+        iou = [values(got[o], "iou").mean() for o in objects]
+        ref_iou = [values(ref[o], "iou").mean() for o in objects] if ref else [float("nan")]
+        small = [o.split(":", 1)[1] for o, v in zip(objects, iou) if v < 0.5]
+        ref_small = [o.split(":", 1)[1] for o, v in zip(objects, ref_iou) if ref and v < 0.5]
+        seeds = sorted({r.get("seed", DEFAULT_SEED) for o in objects for r in got[o]})
+        first = got[objects[0]][0]
         lines.append(f"| {fmt} | {first['views']} x {first['tile']} | {len(objects)} | "
-                     f"{np.mean([c[0] for c in cd]):.4f} | {np.mean([b[0] for b in ref_cd]):.4f} | "
+                     f"{', '.join(map(str, seeds))} | {np.mean([c.mean() for c in cd]):.4f} | "
+                     f"{np.mean([b.mean() for b in ref_cd]):.4f} | "
                      f"{100 * ratio:+.1f}% [{100 * low:+.1f}%, {100 * high:+.1f}%] | {lower}/{len(objects)} | "
-                     f"{np.mean([got[o]['iou'] for o in objects]):.3f} | "
-                     f"{np.mean([ref[o]['iou'] for o in objects]) if ref else float('nan'):.3f} | "
+                     f"{np.mean(iou):.3f} | {np.mean(ref_iou):.3f} | "
                      f"{', '.join(small) or '-'} ({', '.join(ref_small) or '-'}) |")
     return lines
 
@@ -135,7 +146,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--method", default="neus")
     parser.add_argument("--steps", type=int, default=None, help="training steps (default: the method's)")
     parser.add_argument("--tile", type=int, default=None, help="view size (default: each generator's own)")
-    parser.add_argument("--seed", type=int, default=42)
+    parser.add_argument("--seed", type=int, default=DEFAULT_SEED)
     parser.add_argument("--device", default="auto")
     parser.add_argument("--out", type=Path, default=Path("outputs") / "formats")
     parser.add_argument("--resume", action="store_true")
@@ -170,8 +181,8 @@ def main(argv: list[str] | None = None) -> int:
     for fmt in formats:
         for source in (s.strip() for s in args.sources.split(",") if s.strip()):
             for level in (int(v) for v in args.levels.split(",")):
-                if any((r["format"], r["source"], r["level"], r.get("overrides", [])) ==
-                       (fmt, source, level, args.overrides) for r in done):
+                if any((r["format"], r["source"], r["level"], r.get("seed", DEFAULT_SEED), r.get("overrides", [])) ==
+                       (fmt, source, level, args.seed, args.overrides) for r in done):
                     continue
                 row = run_row(fmt, source, level, args)
                 print(f"{fmt} {source} level {level}: CD {row['cd']:.4f} IoU {row['iou']:.3f} "

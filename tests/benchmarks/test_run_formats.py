@@ -28,11 +28,34 @@ def test_comparison_with_the_reference_matches_hand_values(formats):
     new = next(line for line in lines if line.startswith("| new "))
     cells = [c.strip() for c in new.strip("|").split("|")]
     # objects a and b only (c has no reference row): CD ratios +20% and -50%, mean -15%
-    assert cells[1:5] == ["6 x 256", "2", "0.0110", "0.0150"]
-    assert cells[5].startswith("-15.0% [")
-    assert cells[6] == "1/2"
-    assert cells[7:9] == ["0.500", "0.600"]
-    assert cells[9] == "b (b)"
+    assert cells[1:6] == ["6 x 256", "2", "42", "0.0110", "0.0150"]
+    assert cells[6].startswith("-15.0% [")
+    assert cells[7] == "1/2"
+    assert cells[8:10] == ["0.500", "0.600"]
+    assert cells[10] == "b (b)"
+
+
+def test_an_object_with_several_seeds_counts_with_its_seed_mean(formats):
+    rows = [row("ref", "a", 0.010, 0.8, views=4), row("ref", "b", 0.020, 0.4, views=4),
+            {**row("new", "a", 0.010, 0.7), "seed": 1}, {**row("new", "a", 0.014, 0.5), "seed": 2},
+            {**row("new", "b", 0.010, 0.3), "seed": 1}]
+    new = next(line for line in formats.compare_formats(rows, "ref", 0) if line.startswith("| new "))
+    cells = [c.strip() for c in new.strip("|").split("|")]
+    # a: seed mean 0.012 (+20%), b: 0.010 (-50%); objects 2, seeds 1 and 2, mean IoU (0.6 + 0.3) / 2
+    assert cells[2:6] == ["2", "1, 2", "0.0110", "0.0150"]
+    assert cells[6].startswith("-15.0% [") and cells[8] == "0.450"
+
+
+def test_resume_skips_the_rows_of_the_same_seed_and_overrides(formats, tmp_path):
+    out = tmp_path / "out"
+    out.mkdir()
+    done = [{**row("crm", "a", 0.02, 0.9), "source": "procedural:mug"},  # no seed: written with the default
+            {**row("crm", "a", 0.02, 0.9), "source": "procedural:mug", "seed": 7,
+             "overrides": ["pipeline.model.crossings_weight=0"]}]
+    (out / "formats.json").write_text(json.dumps(done))
+    for extra in (["--seed", "42"], ["--seed", "7", "--set", "pipeline.model.crossings_weight=0"]):
+        assert formats.main(["--formats", "crm", "--levels", "0", "--out", str(out), "--resume", *extra]) == 0
+    assert json.loads((out / "formats.json").read_text()) == done  # nothing ran, nothing was rewritten
 
 
 def test_report_reads_several_files_and_runs_nothing(formats, tmp_path, capsys):
@@ -40,7 +63,7 @@ def test_report_reads_several_files_and_runs_nothing(formats, tmp_path, capsys):
     (tmp_path / "b.json").write_text(json.dumps([row("crm", "a", 0.02, 0.9)]))
     assert formats.main(["--report", str(tmp_path / "a.json"), str(tmp_path / "b.json")]) == 0
     out = capsys.readouterr().out
-    assert "| crm | 6 x 256 | 1 | 0.0200 | 0.0100 | +100.0% [+100.0%, +100.0%] | 0/1 |" in out
+    assert "| crm | 6 x 256 | 1 | 42 | 0.0200 | 0.0100 | +100.0% [+100.0%, +100.0%] | 0/1 |" in out
 
 
 @pytest.mark.parametrize("bad", ["crm@x", "crm@", "syncdreamer@0", "nosuchrig"])
