@@ -11,7 +11,7 @@ Writes ``OUT/scenes/<format>/<object>-L<level>/`` (the generator-layout input, m
 ``OUT/runs/<format>/<object>-L<level>/`` (the run) and ``OUT/formats.json`` / ``OUT/formats.md`` (one row per
 format, object and level, and the mean per format and level). Default: ``neus`` with its default steps,
 every view of each rig at its native size. ``--resume`` skips rows already in formats.json (same format,
-source, level, seed and overrides).
+source, level, seed, overrides and elevation).
 
     python benchmarks/run_formats.py --report OUT_A/formats.json [OUT_B/formats.json ...] [--reference syncdreamer@4]
 
@@ -62,13 +62,15 @@ def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict
     scene_dir = args.out / "scenes" / rig / name
     started = time.perf_counter()
     if not (scene_dir / "scene.json").is_file():
-        build_generator_scene(scene_dir, rig, source, level=level, seed=args.seed, tile=args.tile,
+        spec = builtin_rigs()[rig].with_options(elevation_deg=args.elevation)
+        build_generator_scene(scene_dir, spec, source, level=level, seed=args.seed, tile=args.tile,
                               data_root=args.data_root)
     data = json.loads((scene_dir / "scene.json").read_text())["input"]
     built = time.perf_counter() - started
     result = reconstruct(scene_dir / data, args.out / "runs" / fmt.replace("@", "-") / name, method=args.method,
                          data_format=rig, views=views, steps=args.steps, texture=False, turntable_frames=0,
-                         seed=args.seed, overwrite=True, device=args.device, overrides=list(args.overrides))
+                         seed=args.seed, overwrite=True, device=args.device, overrides=list(args.overrides),
+                         elevation=args.elevation)
     meta = result.config.pipeline.datamanager.dataparser.setup().get_outputs("train").metadata
     scores = score_generator_run(result.mesh, scene_dir, meta["rig_to_training"])
     return {"format": fmt, "source": source, "level": level, "seed": args.seed, "views": result.views,
@@ -77,7 +79,8 @@ def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict
             "silhouette_iou_mean": sum(meta["silhouette_iou"]) / len(meta["silhouette_iou"]),
             "train_seconds": result.train_seconds, "build_seconds": round(built, 1),
             "tile": json.loads((scene_dir / "scene.json").read_text())["tile"],
-            **({"overrides": list(args.overrides)} if args.overrides else {})}
+            **({"overrides": list(args.overrides)} if args.overrides else {}),
+            **({"elevation": args.elevation} if args.elevation is not None else {})}
 
 
 def write_report(rows: list[dict], out: Path, command: str) -> None:
@@ -103,7 +106,8 @@ def compare_formats(rows: list[dict], reference: str, level: int) -> list[str]:
     by_format: dict[str, dict[str, list[dict]]] = {}
     for r in rows:
         if r["level"] == level:
-            by_format.setdefault(r["format"], {}).setdefault(r["source"], []).append(r)
+            label = r["format"] + (f" (elevation {r['elevation']:g})" if r.get("elevation") is not None else "")
+            by_format.setdefault(label, {}).setdefault(r["source"], []).append(r)
     ref = by_format.get(reference, {})
     lines = [f"Level {level}; reference `{reference}`", "",
              "| format | views x px | objects | seeds | mean CD | reference CD | CD per object vs reference [95%] | "
@@ -152,6 +156,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--resume", action="store_true")
     parser.add_argument("--set", dest="overrides", action="append", default=[], metavar="PATH=VALUE",
                         help="a config override for every run, as va-recon's --set; the rows record it")
+    parser.add_argument("--elevation", type=float, default=None, metavar="DEG",
+                        help="every view's elevation, written and read so (rigs whose views share one); "
+                             "the rows record it")
     parser.add_argument("--report", nargs="+", type=Path, metavar="FORMATS_JSON",
                         help="print the comparison of these formats.json files with --reference, run nothing")
     parser.add_argument("--reference", default="syncdreamer@4", help="the format --report compares with")
@@ -168,6 +175,11 @@ def main(argv: list[str] | None = None) -> int:
         parser.error(str(error))
     if unknown:
         parser.error(f"unknown format(s) {', '.join(unknown)}; built-in rigs: {', '.join(builtin_rigs())}")
+    try:
+        for fmt in formats:
+            builtin_rigs()[split_format(fmt)[0]].with_options(elevation_deg=args.elevation)
+    except VAError as error:
+        parser.error(str(error))
     for override in args.overrides:  # a mistyped key fails here, before any scene is built
         try:
             apply_override(get_method(args.method).make_config(), override)
@@ -181,8 +193,9 @@ def main(argv: list[str] | None = None) -> int:
     for fmt in formats:
         for source in (s.strip() for s in args.sources.split(",") if s.strip()):
             for level in (int(v) for v in args.levels.split(",")):
-                if any((r["format"], r["source"], r["level"], r.get("seed", DEFAULT_SEED), r.get("overrides", [])) ==
-                       (fmt, source, level, args.seed, args.overrides) for r in done):
+                if any((r["format"], r["source"], r["level"], r.get("seed", DEFAULT_SEED), r.get("overrides", []),
+                        r.get("elevation")) == (fmt, source, level, args.seed, args.overrides, args.elevation)
+                       for r in done):
                     continue
                 row = run_row(fmt, source, level, args)
                 print(f"{fmt} {source} level {level}: CD {row['cd']:.4f} IoU {row['iou']:.3f} "

@@ -84,3 +84,21 @@ def test_a_bad_override_is_one_line_and_exit_2_before_any_work(formats, bad, tmp
     err = capsys.readouterr().err.strip().splitlines()[-1]
     assert "Traceback" not in err and "error:" in err
     assert not out.exists()
+
+
+def test_an_elevation_a_rig_cannot_take_is_one_line_and_exit_2_before_any_work(formats, tmp_path, capsys):
+    out = tmp_path / "never-made"
+    with pytest.raises(SystemExit) as stop:  # CRM's top and bottom views have their own elevations
+        formats.main(["--formats", "four-view-grid,crm", "--elevation", "30", "--out", str(out)])
+    assert stop.value.code == 2
+    err = capsys.readouterr().err.strip().splitlines()[-1]
+    assert "Traceback" not in err and "crm" in err and "elevation" in err
+    assert not out.exists()
+
+
+def test_rows_at_another_elevation_are_reported_apart(formats):
+    rows = [row("ref", "a", 0.010, 0.8, views=4), row("grid", "a", 0.012, 0.7, views=4),
+            {**row("grid", "a", 0.009, 0.7, views=4), "elevation": 30.0}]
+    lines = formats.compare_formats(rows, "ref", 0)
+    assert any(line.startswith("| grid | 4 x 256 | 1 | 42 | 0.0120 |") for line in lines)
+    assert any(line.startswith("| grid (elevation 30) | 4 x 256 | 1 | 42 | 0.0090 |") for line in lines)
