@@ -341,6 +341,8 @@ def test_wonder3d_normal_maps_supervise_neus(wonder3d_folder, tmp_path):
         trainer = config.setup()
         dm = trainer.pipeline.datamanager
         assert dm.normals is not None and dm.normals.shape == (*dm.images.shape[:3], 3)
+        # orthographic, but with normal maps: the crossings prior stays on
+        assert trainer.model.scene.has_normals and trainer.model.crossings_weight == 0.05
         _, batch = dm.next_train(0)
         lengths = batch["normal"].norm(dim=-1)
         assert bool(((lengths - 1).abs() < 1e-3).logical_or(lengths == 0).all()) and bool((lengths > 0).any())

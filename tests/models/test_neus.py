@@ -177,6 +177,23 @@ def test_crossings_prior_is_a_finite_loss_after_its_start(tiny_scene, tmp_path):
     assert "crossings" not in late.model.get_loss_dict(late.model.get_outputs(rays), batch)
 
 
+def test_crossings_prior_is_off_on_orthographic_scenes_without_normal_maps():
+    from va_plugin.data.rigfile import builtin_rigs, rig_cameras
+    from va_plugin.models.base import SceneInfo
+    from va_plugin.models.neus import NeuSModelConfig
+
+    def weight(rig, has_normals=False, **options):
+        cameras = rig_cameras(builtin_rigs()[rig], 16)
+        scene = SceneInfo(num_train_views=len(cameras), scene_radius=1.0, train_cameras=cameras,
+                          has_normals=has_normals)
+        return NeuSModelConfig(crossings_weight=0.05, **options).setup(scene=scene).crossings_weight
+
+    assert weight("mvadapter") == 0.0  # orthographic, no normal maps
+    assert weight("mvadapter", has_normals=True) == 0.05
+    assert weight("mvadapter", crossings_orthographic=True) == 0.05
+    assert weight("four-view-grid") == 0.05  # perspective
+
+
 @pytest.mark.parametrize("key, value", [("crossings_weight", -0.1), ("crossings_rays", 0), ("crossings_samples", 1),
                                         ("crossings_start", 1.5)])
 def test_bad_crossings_options_are_config_errors(key, value, tiny_scene, tmp_path):

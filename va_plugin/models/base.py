@@ -27,6 +27,7 @@ class SceneInfo:
     schedule_steps: int = 1000  # where the run's schedules end (the trainer's ``schedule_steps_of``)
     train_cameras: Cameras | None = None  # on the device (the NGP occupancy grid keeps cells they all see)
     train_masks: torch.Tensor | None = None  # [n, H, W, 1] foreground of the training views, or None
+    has_normals: bool = False  # whether the training views come with normal maps
 
 
 @dataclass

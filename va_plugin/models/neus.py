@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from va_plugin.cameras import ORTHOGRAPHIC
 from va_plugin.errors import ConfigError
 from va_plugin.fields.base import FieldConfig
 from va_plugin.fields.sdf_field import SDFFieldConfig
@@ -74,6 +75,10 @@ class NeuSModelConfig(ModelConfig):
     """Stratified points per line of the crossings prior; the soft indicator's width is their spacing."""
     crossings_start: float = 0.1
     """Share of the step budget before the crossings prior starts."""
+    crossings_orthographic: bool = False
+    """Whether the crossings prior also runs on scenes whose cameras are orthographic and that have no normal
+    maps. Off: there the silhouettes hold a flat face seen head-on or edge-on only at its edges, and the
+    prior caves it in (a box's sides); with normal maps, or perspective cameras, the prior runs."""
 
     def samples_per_ray(self) -> int:
         return int(self.n_samples) + int(self.n_importance)
@@ -105,6 +110,8 @@ class NeuSModel(Model):
         self.sdf_gradient = config.sdf_gradient if config.sdf_gradient != "auto" else \
             ("analytic" if self.field.analytic_sdf_gradient else "autograd")  # "auto" resolved
         self.variance = SingleVariance(config.variance_init)
+        self.crossings_weight = config.crossings_weight if crossings_apply(config, scene) else 0.0
+        """The crossings prior's weight in this scene (0: off)."""
         # per batch ray of the last training batch: samples evaluated with gradients (skipped rays count 0),
         # and SDF evaluations of the gradient-free coarse and up-sampling passes
         self.samples_per_ray = 0.0
@@ -278,8 +285,8 @@ class NeuSModel(Model):
             loss["mask"] = cfg.mask_weight * losses.mask_loss(outputs["accumulation"], batch["mask"])
         if cfg.normal_weight > 0 and "normal" in batch:
             loss["normal"] = cfg.normal_weight * losses.normal_loss(outputs["normal"], batch["normal"])
-        if cfg.crossings_weight > 0 and self.training and self.step >= cfg.crossings_start * self.scene.schedule_steps:
-            loss["crossings"] = cfg.crossings_weight * self._crossings(outputs["accumulation"].device)
+        if self.crossings_weight > 0 and self.training and self.step >= cfg.crossings_start * self.scene.schedule_steps:
+            loss["crossings"] = self.crossings_weight * self._crossings(outputs["accumulation"].device)
         return self.apply_extra_losses(loss, outputs, batch)
 
     def _crossings(self, device: torch.device) -> torch.Tensor:
@@ -329,3 +336,11 @@ def _scatter_rays(inner: dict[str, torch.Tensor], index: torch.Tensor, n_rays: i
             value = value * 0.0 + full[index]
         out[key] = full.index_put((index,), value)
     return out
+
+
+def crossings_apply(config: NeuSModelConfig, scene: SceneInfo) -> bool:
+    """Whether the crossings prior runs in ``scene``: always when ``config.crossings_orthographic`` is set,
+    else unless the training cameras are orthographic and there are no normal maps."""
+    if config.crossings_orthographic or scene.has_normals or scene.train_cameras is None:
+        return True
+    return scene.train_cameras.camera_type != ORTHOGRAPHIC

@@ -38,7 +38,8 @@ class Pipeline(nn.Module):
         scene = SceneInfo(num_train_views=self.datamanager.num_train_views,
                           scene_radius=self.datamanager.scene_radius,
                           background=self.datamanager.background, schedule_steps=schedule_steps,
-                          train_cameras=self.datamanager.cameras, train_masks=self.datamanager.masks)
+                          train_cameras=self.datamanager.cameras, train_masks=self.datamanager.masks,
+                          has_normals=self.datamanager.normals is not None)
         self.model = config.model.setup(scene=scene).to(device)
 
     def train_step(self, step: int) -> tuple[dict[str, torch.Tensor], dict[str, float]]:
