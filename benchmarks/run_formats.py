@@ -7,9 +7,10 @@ F-score against the true mesh brought into the training frame, unit-box protocol
         --formats hunyuan3d-std,mvadapter,sv3d,era3d,crm,four-view-grid --levels 0,2 [--steps N] \\
         [--tile N] [--out outputs/formats] [--resume]
 
-Writes ``OUT/scenes/<format>/<object>-L<level>/`` (the generator-layout input, mesh.ply, scene.json),
-``OUT/runs/<format>/<object>-L<level>/`` (the run) and ``OUT/formats.json`` / ``OUT/formats.md`` (one row per
-format, object and level, and the mean per format and level). Default: ``neus`` with its default steps,
+Writes ``OUT/scenes/<format>/NAME/`` (the generator-layout input, mesh.ply, scene.json), ``OUT/runs/<format>/NAME/``
+(the run; NAME is ``<object>-L<level>``, then ``-s<seed>`` and ``-e<elevation>`` where not the defaults) and
+``OUT/formats.json`` / ``OUT/formats.md`` (one row per format, object and level, and the mean per format and
+level). Default: ``neus`` with its default steps,
 every view of each rig at its native size. ``--resume`` skips rows already in formats.json (same format,
 source, level, seed, overrides and elevation).
 
@@ -56,8 +57,15 @@ def split_format(fmt: str) -> tuple[str, int | str]:
         raise ValueError(f"format {fmt}: {error}") from None
 
 
+def run_name(source: str, level: int, args: argparse.Namespace) -> str:
+    """The scene and run folder of one row: object and level, then the seed and elevation where they are not
+    the defaults (the scene depends on both, so rows of another seed or elevation never reuse it)."""
+    return (f"{source.split(':', 1)[1]}-L{level}" + (f"-s{args.seed}" if args.seed != DEFAULT_SEED else "")
+            + (f"-e{args.elevation:g}" if args.elevation is not None else ""))
+
+
 def run_row(fmt: str, source: str, level: int, args: argparse.Namespace) -> dict:
-    name = f"{source.split(':', 1)[1]}-L{level}"
+    name = run_name(source, level, args)
     rig, views = split_format(fmt)
     scene_dir = args.out / "scenes" / rig / name
     started = time.perf_counter()

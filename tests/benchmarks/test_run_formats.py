@@ -102,3 +102,10 @@ def test_rows_at_another_elevation_are_reported_apart(formats):
     lines = formats.compare_formats(rows, "ref", 0)
     assert any(line.startswith("| grid | 4 x 256 | 1 | 42 | 0.0120 |") for line in lines)
     assert any(line.startswith("| grid (elevation 30) | 4 x 256 | 1 | 42 | 0.0090 |") for line in lines)
+
+
+def test_another_seed_or_elevation_gets_its_own_scene_folder(formats):
+    from argparse import Namespace
+
+    assert formats.run_name("gso:cream", 0, Namespace(seed=42, elevation=None)) == "cream-L0"
+    assert formats.run_name("gso:cream", 2, Namespace(seed=7, elevation=30.0)) == "cream-L2-s7-e30"
